@@ -1,0 +1,241 @@
+"""Every dolfinx-version-specific call (written against dolfinx 0.5.2, Debian 12).
+
+A move to a newer dolfinx (``functionspace``, ``gmshio.read_from_msh`` returning a
+named tuple, ``create_matrix`` signatures …) should only touch this module.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import dolfinx
+import dolfinx.fem.petsc
+import gmsh
+import numpy as np
+import ufl
+from dolfinx.io import gmshio
+from mpi4py import MPI
+
+from meshing import groups
+from workflows.errors import InputError
+
+DOLFINX_VERSION = dolfinx.__version__
+
+
+class MeshFileError(InputError):
+    """A mesh file that is missing or lacks the groups the solver needs."""
+
+
+def read_mesh(path: str | Path, comm=MPI.COMM_WORLD, volumes=groups.DEA_VOLUMES):
+    """Read the named volume groups of a scene ``.msh`` into dolfinx, with their tags.
+
+    Rank 0 reads the file with gmsh and keeps the cells of ``volumes`` and the tagged
+    facets that lie on them (gmsh's own ``removePhysicalGroups`` fails on merged files
+    in gmsh 4.8, so the selection is done on the arrays); dolfinx then distributes the
+    mesh over ``comm``.
+
+    Returns
+    -------
+    (mesh, cell_tags, facet_tags)
+    """
+    path = Path(path)
+    data, error = None, None
+    if comm.rank == 0:
+        if not path.is_file():
+            error = "not found (run `deapull mesh` first)"
+        else:
+            gmsh.initialize()
+            gmsh.option.setNumber("General.Terminal", 0)
+            try:
+                gmsh.merge(str(path))
+                data, error = _extract(volumes)
+            finally:
+                gmsh.finalize()
+    error = comm.bcast(error, root=0)
+    if error:
+        raise MeshFileError(f"mesh file {str(path)!r}: {error}")
+    cell_id, n_nodes, facet_nodes = comm.bcast(data[:3] if comm.rank == 0 else None, root=0)
+    if comm.rank == 0:
+        x, cells, cell_values, facets, facet_values = data[3:]
+    else:
+        x, cells, cell_values = np.empty((0, 3)), np.empty((0, n_nodes), np.int64), np.empty(0, np.int32)
+        facets, facet_values = np.empty((0, facet_nodes), np.int64), np.empty(0, np.int32)
+    domain = gmshio.ufl_mesh(cell_id, 3)
+    cell_type = dolfinx.cpp.mesh.to_type(str(domain.ufl_cell()))
+    cells = cells[:, gmshio.cell_perm_array(cell_type, n_nodes)]
+    mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain)
+    tdim = mesh.topology.dim
+    ents, vals = dolfinx.cpp.io.distribute_entity_data(mesh._mesh, tdim, cells, cell_values)
+    mesh.topology.create_connectivity(tdim, 0)
+    ct = dolfinx.mesh.meshtags_from_entities(mesh, tdim, dolfinx.cpp.graph.AdjacencyList_int32(ents),
+                                             vals.astype(np.int32))
+    facet_type = dolfinx.cpp.mesh.cell_entity_type(cell_type, tdim - 1, 0)
+    facets = facets[:, gmshio.cell_perm_array(facet_type, facet_nodes)]
+    ents, vals = dolfinx.cpp.io.distribute_entity_data(mesh._mesh, tdim - 1, facets, facet_values)
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    ft = dolfinx.mesh.meshtags_from_entities(mesh, tdim - 1, dolfinx.cpp.graph.AdjacencyList_int32(ents),
+                                             vals.astype(np.int32))
+    ct.name, ft.name = "cell_tags", "facet_tags"
+    return mesh, ct, ft
+
+
+def _elements_of_group(dim, tag):
+    types, nodes = set(), []
+    for entity in gmsh.model.getEntitiesForPhysicalGroup(dim, tag):
+        etypes, _, enodes = gmsh.model.mesh.getElements(dim, entity)
+        for et, nd in zip(etypes, enodes):
+            n = gmsh.model.mesh.getElementProperties(et)[3]
+            types.add(int(et))
+            nodes.append(np.asarray(nd, dtype=np.int64).reshape(-1, n))
+    return types, nodes
+
+
+def _extract(volumes):
+    """Arrays of the wanted volumes and of the facets on them, nodes renumbered from 0."""
+    present = {tag for _, tag in gmsh.model.getPhysicalGroups(3)}
+    wanted = [groups.VOLUMES[v] for v in volumes]
+    missing = [groups.NAMES[t] for t in wanted if t not in present]
+    if missing:
+        have = ", ".join(groups.NAMES.get(t, str(t)) for t in sorted(present)) or "none"
+        return None, f"physical volume(s) {', '.join(missing)} missing; present: {have}"
+    cell_types, cell_blocks, cell_values = set(), [], []
+    for tag in wanted:
+        types, blocks = _elements_of_group(3, tag)
+        cell_types |= types
+        cell_blocks += blocks
+        cell_values += [np.full(len(b), tag, np.int32) for b in blocks]
+    if len(cell_types) != 1:
+        return None, f"volumes {', '.join(volumes)} mix cell types {sorted(cell_types)}; dolfinx needs one"
+    cells = np.vstack(cell_blocks)
+    used = np.unique(cells)
+    facet_types, facet_blocks, facet_values = set(), [], []
+    for _, tag in gmsh.model.getPhysicalGroups(2):
+        types, blocks = _elements_of_group(2, tag)
+        for b in blocks:
+            b = b[np.all(np.isin(b, used), axis=1)]
+            if len(b):
+                facet_blocks.append(b)
+                facet_values.append(np.full(len(b), tag, np.int32))
+                facet_types |= types
+    node_tags, coords, _ = gmsh.model.mesh.getNodes()
+    coords = np.asarray(coords).reshape(-1, 3)
+    lookup = np.full(int(node_tags.max()) + 1, -1, np.int64)
+    lookup[node_tags] = np.arange(len(node_tags))
+    x = coords[lookup[used]]
+    renumber = np.full(int(node_tags.max()) + 1, -1, np.int64)
+    renumber[used] = np.arange(len(used))
+    cell_id = cell_types.pop()
+    n_facet_nodes = facet_blocks[0].shape[1] if facet_blocks else 0
+    facets = renumber[np.vstack(facet_blocks)] if facet_blocks else np.empty((0, 0), np.int64)
+    fvals = np.concatenate(facet_values) if facet_values else np.empty(0, np.int32)
+    return (cell_id, cells.shape[1], n_facet_nodes, x, renumber[cells], np.concatenate(cell_values),
+            facets, fvals), None
+
+
+def cell_degree(mesh) -> int:
+    return mesh.geometry.cmap.degree
+
+
+def element(family: str, mesh, degree: int, shape=None):
+    """A basix-backed UFL element on the mesh's cell (``shape=(3,)`` for vectors)."""
+    cell = mesh.ufl_cell().cellname()
+    if shape is None:
+        return ufl.FiniteElement(family, cell, degree)
+    return ufl.VectorElement(family, cell, degree, dim=shape[0])
+
+
+def function_space(mesh, ufl_element):
+    return dolfinx.fem.FunctionSpace(mesh, ufl_element)
+
+
+def mixed_element(*elements):
+    return ufl.MixedElement(list(elements))
+
+
+def locate_dofs_on_facets(space, mesh, facets, subspace=None):
+    """Dofs of ``space`` (or its sub-space) on the given facets; returns (dofs, collapsed space)."""
+    fdim = mesh.topology.dim - 1
+    if subspace is None:
+        return dolfinx.fem.locate_dofs_topological(space, fdim, facets), space
+    sub = space.sub(subspace)
+    collapsed, _ = sub.collapse()
+    dofs = dolfinx.fem.locate_dofs_topological((sub, collapsed), fdim, facets)
+    return dofs, collapsed
+
+
+def dirichlet_zero(space, mesh, facets, subspace=None):
+    """Homogeneous Dirichlet condition on facets (all components of the sub-space)."""
+    dofs, collapsed = locate_dofs_on_facets(space, mesh, facets, subspace)
+    zero = dolfinx.fem.Function(collapsed)
+    if subspace is None:
+        return dolfinx.fem.dirichletbc(zero, dofs)
+    return dolfinx.fem.dirichletbc(zero, dofs, space.sub(subspace))
+
+
+def dirichlet_value(space, mesh, facets, value: dolfinx.fem.Function, subspace):
+    dofs, _ = locate_dofs_on_facets(space, mesh, facets, subspace)
+    return dolfinx.fem.dirichletbc(value, dofs, space.sub(subspace))
+
+
+def form(expr):
+    return dolfinx.fem.form(expr)
+
+
+def create_vector(compiled):
+    return dolfinx.fem.petsc.create_vector(compiled)
+
+
+def create_matrix(compiled):
+    return dolfinx.fem.petsc.create_matrix(compiled)
+
+
+def assemble_residual(b, compiled_F, compiled_J, bcs, x):
+    """b = F(x) with lifted, set Dirichlet values so that the update enforces bcs (x - g)."""
+    from petsc4py import PETSc
+    with b.localForm() as loc:
+        loc.set(0.0)
+    dolfinx.fem.petsc.assemble_vector(b, compiled_F)
+    dolfinx.fem.petsc.apply_lifting(b, [compiled_J], bcs=[bcs], x0=[x], scale=-1.0)
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    dolfinx.fem.petsc.set_bc(b, bcs, x, -1.0)
+
+
+def assemble_jacobian(A, compiled_J, bcs):
+    A.zeroEntries()
+    dolfinx.fem.petsc.assemble_matrix(A, compiled_J, bcs=bcs)
+    A.assemble()
+
+
+def assemble_scalar(compiled, comm):
+    return comm.allreduce(dolfinx.fem.assemble_scalar(compiled), op=MPI.SUM)
+
+
+def facets_with_tag(facet_tags, tag):
+    return facet_tags.indices[facet_tags.values == tag]
+
+
+def integration_measures(mesh, cell_tags, facet_tags, quadrature_degree):
+    md = {"quadrature_degree": quadrature_degree}
+    dx = ufl.Measure("dx", domain=mesh, subdomain_data=cell_tags, metadata=md)
+    ds = ufl.Measure("ds", domain=mesh, subdomain_data=facet_tags, metadata=md)
+    return dx, ds
+
+
+def num_cells_global(mesh) -> int:
+    imap = mesh.topology.index_map(mesh.topology.dim)
+    return imap.size_global
+
+
+def xdmf_writer(comm, path, mesh):
+    f = dolfinx.io.XDMFFile(comm, str(path), "w")
+    f.write_mesh(mesh)
+    return f
+
+
+def interpolate_to_p1(u, mesh):
+    """Interpolate a (P2) vector field onto the mesh's own geometry space, for XDMF output."""
+    V1 = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", cell_degree(mesh)))
+    out = dolfinx.fem.Function(V1, name=u.name)
+    out.interpolate(u)
+    return out
+
+

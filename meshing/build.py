@@ -1,0 +1,210 @@
+"""Gmsh model of the unimorph DEA (and the coin, when the scene has one).
+
+The DEA is two boxes (active stack and passive layer) fragmented so that they share a
+conforming interface. ``mesh.cell = "hexahedron"`` meshes them as structured
+(transfinite) hexahedra; ``"tetrahedron"`` splits the same structured grid into
+tetrahedra. The coin is an unstructured tetrahedral cylinder. All elements are of
+order ``mesh.order`` (second order by default: 27-node hexahedra, 10-node tetrahedra),
+so the curved coin rim is represented and its mesh volume is within 0.5 % of πr²h.
+``mesh.level`` multiplies every division by 2**level.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import gmsh
+import numpy as np
+
+from meshing import groups
+from meshing.layout import layout
+from workflows.scene import Scene
+
+_TOL = 1e-6  # OCC pads bounding boxes by ~1e-7 m
+
+
+@contextmanager
+def gmsh_session(name: str = "deapull"):
+    """An initialised, quiet gmsh session, always finalised."""
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add(name)
+        yield gmsh.model
+    finally:
+        gmsh.finalize()
+
+
+def _entities_in_box(dim, xmin, ymin, zmin, xmax, ymax, zmax):
+    e = _TOL
+    return [t for _, t in gmsh.model.getEntitiesInBoundingBox(xmin - e, ymin - e, zmin - e,
+                                                              xmax + e, ymax + e, zmax + e, dim)]
+
+
+def _divisions(scene: Scene) -> dict:
+    m = scene.mesh
+    k = 2 ** m.level
+    return {"x": m.n_length * k, "z": m.n_width * k, "active": m.n_active * k, "passive": m.n_passive * k}
+
+
+def _add_dea(scene: Scene) -> dict:
+    """Add the two DEA layers; return the volume tags by name."""
+    lay = layout(scene)
+    occ = gmsh.model.occ
+    L, w = lay.length_m, lay.width_m
+    tags = {}
+    for name, (y0, y1) in (("active", lay.active_y_m), ("passive", lay.passive_y_m)):
+        tags[name] = occ.addBox(-L, y0, -w / 2, L, y1 - y0, w)
+    _, pieces = occ.fragment([(3, tags["active"])], [(3, tags["passive"])])
+    occ.synchronize()
+    return {"active": pieces[0][0][1], "passive": pieces[1][0][1]}
+
+
+def _structure_dea(scene: Scene) -> None:
+    """Transfinite curves, surfaces and volumes on the DEA boxes."""
+    lay = layout(scene)
+    n = _divisions(scene)
+    L, w = lay.length_m, lay.width_m
+    ytop = lay.y_bottom_m + lay.thickness_m
+    for _, c in gmsh.model.getEntitiesInBoundingBox(-L - _TOL, lay.y_bottom_m - _TOL, -w / 2 - _TOL,
+                                                    _TOL, ytop + _TOL, w / 2 + _TOL, 1):
+        x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, c)
+        if x1 - x0 > _TOL:
+            count = n["x"]
+        elif z1 - z0 > _TOL:
+            count = n["z"]
+        else:
+            in_active = lay.active_y_m[0] - _TOL <= y0 and y1 <= lay.active_y_m[1] + _TOL
+            count = n["active"] if in_active else n["passive"]
+        gmsh.model.mesh.setTransfiniteCurve(c, count + 1)
+    for _, s in gmsh.model.getEntitiesInBoundingBox(-L - _TOL, lay.y_bottom_m - _TOL, -w / 2 - _TOL,
+                                                    _TOL, ytop + _TOL, w / 2 + _TOL, 2):
+        gmsh.model.mesh.setTransfiniteSurface(s)
+        if scene.mesh.cell == "hexahedron":
+            gmsh.model.mesh.setRecombine(2, s)
+    for _, v in gmsh.model.getEntitiesInBoundingBox(-L - _TOL, lay.y_bottom_m - _TOL, -w / 2 - _TOL,
+                                                    _TOL, ytop + _TOL, w / 2 + _TOL, 3):
+        gmsh.model.mesh.setTransfiniteVolume(v)
+
+
+def _add_coin(scene: Scene) -> int:
+    lay = layout(scene)
+    c = scene.coin
+    tag = gmsh.model.occ.addCylinder(lay.obstacle_center_x_m, 0.0, 0.0, 0.0, c.height_m, 0.0, c.radius_m)
+    gmsh.model.occ.synchronize()
+    return tag
+
+
+def _tag_groups(scene: Scene, vols: dict, coin_tag) -> None:
+    lay = layout(scene)
+    L, w = lay.length_m, lay.width_m
+    ytop = lay.y_bottom_m + lay.thickness_m
+
+    def add(dim, entities, tag, name):
+        gmsh.model.addPhysicalGroup(dim, entities, tag)
+        gmsh.model.setPhysicalName(dim, tag, name)
+    for name, tag in vols.items():
+        add(3, [tag], groups.VOLUMES[name], name)
+    add(2, _entities_in_box(2, 0, lay.y_bottom_m, -w / 2, 0, ytop, w / 2), groups.CLAMP, "clamp")
+    (a0, a1) = lay.active_y_m
+    add(2, _entities_in_box(2, -L, a1, -w / 2, 0, a1, w / 2), groups.ELECTRODE_TOP, "electrode_top")
+    add(2, _entities_in_box(2, -L, a0, -w / 2, 0, a0, w / 2), groups.ELECTRODE_BOTTOM, "electrode_bottom")
+    y0 = lay.y_bottom_m
+    add(2, _entities_in_box(2, -L, y0, -w / 2, 0, y0, w / 2), groups.DEA_CONTACT, "dea_contact")
+    if coin_tag is not None:
+        add(3, [coin_tag], groups.COIN, "coin")
+        x0, r, h = lay.obstacle_center_x_m, scene.coin.radius_m, scene.coin.height_m
+        add(2, _entities_in_box(2, x0 - r, h, -r, x0 + r, h, r), groups.COIN_TOP, "coin_top")
+        add(2, _entities_in_box(2, x0 - r, 0, -r, x0 + r, 0, r), groups.COIN_BOTTOM, "coin_bottom")
+
+
+def build_model(scene: Scene) -> None:
+    """Build and mesh the scene in the current gmsh model."""
+    vols = _add_dea(scene)
+    coin_tag = _add_coin(scene) if scene.coin is not None else None
+    _structure_dea(scene)
+    if coin_tag is not None:
+        size = scene.mesh.coin_size_m / 2 ** scene.mesh.level
+        coin_points = gmsh.model.getBoundary([(3, coin_tag)], combined=False, recursive=True)
+        gmsh.model.mesh.setSize(coin_points, size)
+    _tag_groups(scene, vols, coin_tag)
+    gmsh.option.setNumber("Mesh.ElementOrder", scene.mesh.order)
+    gmsh.option.setNumber("Mesh.SecondOrderIncomplete", 0)
+    gmsh.option.setNumber("Mesh.HighOrderOptimize", 0)
+    gmsh.model.mesh.generate(3)
+    if scene.mesh.order > 1:
+        gmsh.model.mesh.setOrder(scene.mesh.order)
+
+
+def _group_measure(dim: int, tag: int) -> tuple[float, float]:
+    """Mesh measure (volume or area) of a physical group, by Gauss quadrature on its elements,
+    and its worst element quality min(det J) / max(det J) over the Gauss points (1 = affine)."""
+    total, quality = 0.0, 1.0
+    for entity in gmsh.model.getEntitiesForPhysicalGroup(dim, tag):
+        types, _, _ = gmsh.model.mesh.getElements(dim, entity)
+        for etype in types:
+            pts, weights = gmsh.model.mesh.getIntegrationPoints(etype, "Gauss6")
+            _, dets, _ = gmsh.model.mesh.getJacobians(etype, pts, entity)
+            dets = np.asarray(dets).reshape(-1, len(weights))
+            total += float(np.sum(np.abs(dets) @ np.asarray(weights)))
+            quality = min(quality, float(np.min(dets.min(axis=1) / np.abs(dets).max(axis=1))))
+    return total, quality
+
+
+def summarise() -> dict:
+    """Cells, nodes and measure per physical group, and the minimum element quality."""
+    out = {"groups": {}}
+    qualities = []
+    for dim, tag in gmsh.model.getPhysicalGroups():
+        name = gmsh.model.getPhysicalName(dim, tag)
+        n_cells, nodes = 0, set()
+        for entity in gmsh.model.getEntitiesForPhysicalGroup(dim, tag):
+            types, etags, enodes = gmsh.model.mesh.getElements(dim, entity)
+            for et, nd in zip(etags, enodes):
+                n_cells += len(et)
+                nodes.update(nd.tolist())
+        measure, quality = _group_measure(dim, tag)
+        if dim == 3:
+            qualities.append(quality)
+        key = "volume_m3" if dim == 3 else "area_m2"
+        out["groups"][name] = {"dim": dim, "id": tag, "cells": n_cells, "nodes": len(nodes), key: measure}
+    out["min_quality_detj_ratio"] = min(qualities) if qualities else None
+    return out
+
+
+def write_mesh(scene: Scene, out_dir: str | os.PathLike) -> tuple[Path, dict]:
+    """Mesh the scene into ``out_dir/mesh.msh`` and ``out_dir/mesh.json`` (atomically).
+
+    Returns the path of the ``.msh`` file and the summary.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with gmsh_session(scene.scene.name):
+        build_model(scene)
+        summary = summarise()
+        summary.update(scene=scene.scene.name, setup=scene.setup, cell=scene.mesh.cell,
+                       order=scene.mesh.order, level=scene.mesh.level, divisions=_divisions(scene))
+        if scene.coin is not None:
+            c = scene.coin
+            exact = math.pi * c.radius_m ** 2 * c.height_m
+            summary["coin_volume_exact_m3"] = exact
+            summary["coin_volume_rel_error"] = summary["groups"]["coin"]["volume_m3"] / exact - 1.0
+        fd, tmp = tempfile.mkstemp(suffix=".msh", dir=out)
+        os.close(fd)
+        gmsh.write(tmp)
+    msh = out / "mesh.msh"
+    os.replace(tmp, msh)
+    atomic_write_text(out / "mesh.json", json.dumps(summary, indent=2))
+    return msh, summary
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write text to ``path`` through a temp file and a rename."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
