@@ -171,6 +171,21 @@ def dirichlet_zero(space, mesh, facets, subspace=None):
     return dolfinx.fem.dirichletbc(zero, dofs, space.sub(subspace))
 
 
+def dirichlet_zero_cells(space, mesh, cells, subspace):
+    """Homogeneous Dirichlet condition on every dof of a sub-space inside the given cells."""
+    sub = space.sub(subspace)
+    collapsed, _ = sub.collapse()
+    dofs = dolfinx.fem.locate_dofs_topological((sub, collapsed), mesh.topology.dim, cells)
+    return dolfinx.fem.dirichletbc(dolfinx.fem.Function(collapsed), dofs, sub)
+
+
+def nodal_displacement(w, has_subspaces: bool):
+    """(coordinates, displacement) of every local node of the displacement field, shape (n, 3)."""
+    u = w.sub(0).collapse() if has_subspaces else w
+    coords = u.function_space.tabulate_dof_coordinates()
+    return coords, u.x.array.reshape(-1, 3)
+
+
 def dirichlet_value(space, mesh, facets, value: dolfinx.fem.Function, subspace):
     dofs, _ = locate_dofs_on_facets(space, mesh, facets, subspace)
     return dolfinx.fem.dirichletbc(value, dofs, space.sub(subspace))

@@ -64,14 +64,15 @@ def _add_dea(scene: Scene) -> dict:
     return {"active": pieces[0][0][1], "passive": pieces[1][0][1]}
 
 
-def _structure_dea(scene: Scene) -> None:
-    """Transfinite curves, surfaces and volumes on the DEA boxes."""
+def _structure_dea(scene: Scene, vols: dict) -> None:
+    """Transfinite curves, surfaces and volumes on the DEA boxes (and nothing else)."""
     lay = layout(scene)
     n = _divisions(scene)
-    L, w = lay.length_m, lay.width_m
-    ytop = lay.y_bottom_m + lay.thickness_m
-    for _, c in gmsh.model.getEntitiesInBoundingBox(-L - _TOL, lay.y_bottom_m - _TOL, -w / 2 - _TOL,
-                                                    _TOL, ytop + _TOL, w / 2 + _TOL, 1):
+    volumes = [(3, t) for t in vols.values()]
+    surfaces = sorted({abs(t) for _, t in gmsh.model.getBoundary(volumes, combined=False, oriented=False)})
+    curves = sorted({abs(t) for _, t in gmsh.model.getBoundary([(2, s) for s in surfaces], combined=False,
+                                                                oriented=False)})
+    for c in curves:
         x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, c)
         if x1 - x0 > _TOL:
             count = n["x"]
@@ -81,13 +82,11 @@ def _structure_dea(scene: Scene) -> None:
             in_active = lay.active_y_m[0] - _TOL <= y0 and y1 <= lay.active_y_m[1] + _TOL
             count = n["active"] if in_active else n["passive"]
         gmsh.model.mesh.setTransfiniteCurve(c, count + 1)
-    for _, s in gmsh.model.getEntitiesInBoundingBox(-L - _TOL, lay.y_bottom_m - _TOL, -w / 2 - _TOL,
-                                                    _TOL, ytop + _TOL, w / 2 + _TOL, 2):
+    for s in surfaces:
         gmsh.model.mesh.setTransfiniteSurface(s)
         if scene.mesh.cell == "hexahedron":
             gmsh.model.mesh.setRecombine(2, s)
-    for _, v in gmsh.model.getEntitiesInBoundingBox(-L - _TOL, lay.y_bottom_m - _TOL, -w / 2 - _TOL,
-                                                    _TOL, ytop + _TOL, w / 2 + _TOL, 3):
+    for _, v in volumes:
         gmsh.model.mesh.setTransfiniteVolume(v)
 
 
@@ -109,12 +108,18 @@ def _tag_groups(scene: Scene, vols: dict, coin_tag) -> None:
         gmsh.model.setPhysicalName(dim, tag, name)
     for name, tag in vols.items():
         add(3, [tag], groups.VOLUMES[name], name)
-    add(2, _entities_in_box(2, 0, lay.y_bottom_m, -w / 2, 0, ytop, w / 2), groups.CLAMP, "clamp")
+    dea_faces = {abs(t) for _, t in gmsh.model.getBoundary([(3, t) for t in vols.values()], combined=False,
+                                                            oriented=False)}
+
+    def dea_box(*box):
+        return [t for t in _entities_in_box(2, *box) if t in dea_faces]
+
+    add(2, dea_box(0, lay.y_bottom_m, -w / 2, 0, ytop, w / 2), groups.CLAMP, "clamp")
     (a0, a1) = lay.active_y_m
-    add(2, _entities_in_box(2, -L, a1, -w / 2, 0, a1, w / 2), groups.ELECTRODE_TOP, "electrode_top")
-    add(2, _entities_in_box(2, -L, a0, -w / 2, 0, a0, w / 2), groups.ELECTRODE_BOTTOM, "electrode_bottom")
+    add(2, dea_box(-L, a1, -w / 2, 0, a1, w / 2), groups.ELECTRODE_TOP, "electrode_top")
+    add(2, dea_box(-L, a0, -w / 2, 0, a0, w / 2), groups.ELECTRODE_BOTTOM, "electrode_bottom")
     y0 = lay.y_bottom_m
-    add(2, _entities_in_box(2, -L, y0, -w / 2, 0, y0, w / 2), groups.DEA_CONTACT, "dea_contact")
+    add(2, dea_box(-L, y0, -w / 2, 0, y0, w / 2), groups.DEA_CONTACT, "dea_contact")
     if coin_tag is not None:
         add(3, [coin_tag], groups.COIN, "coin")
         x0, r, h = lay.obstacle_center_x_m, scene.coin.radius_m, scene.coin.height_m
@@ -126,7 +131,7 @@ def build_model(scene: Scene) -> None:
     """Build and mesh the scene in the current gmsh model."""
     vols = _add_dea(scene)
     coin_tag = _add_coin(scene) if scene.coin is not None else None
-    _structure_dea(scene)
+    _structure_dea(scene, vols)
     if coin_tag is not None:
         size = scene.mesh.coin_size_m / 2 ** scene.mesh.level
         coin_points = gmsh.model.getBoundary([(3, coin_tag)], combined=False, recursive=True)

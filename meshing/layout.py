@@ -2,8 +2,8 @@
 
 Axes as in the paper: x along the DEA (clamp face at x = 0, free end at x = -length),
 y vertical (up, gravity along -y, ground at y = 0), z across the width (centred).
-The DEA's underside rests at the height of the obstacle's top face (coin or stop), or
-at y = 0 when the scene has neither.
+The DEA's underside is clamped ``dea.clamp_gap_m`` above the obstacle's top face (coin
+or stop), or at y = 0 when the scene has neither; gravity lets it down onto the obstacle.
 """
 from __future__ import annotations
 
@@ -33,14 +33,15 @@ def layout(scene: Scene) -> Layout:
     d = scene.dea
     obstacle = scene.coin or scene.stop
     top = (scene.coin.height_m if scene.coin else scene.stop.height_m) if obstacle else 0.0
+    base = top + d.clamp_gap_m
     lower, upper = (d.passive_thickness_m, d.active_thickness_m)
     if d.active_side == "bottom":
         lower, upper = upper, lower
-    y_mid = top + lower
-    lower_range, upper_range = (top, y_mid), (y_mid, y_mid + upper)
+    y_mid = base + lower
+    lower_range, upper_range = (base, y_mid), (y_mid, y_mid + upper)
     active, passive = (upper_range, lower_range) if d.active_side == "top" else (lower_range, upper_range)
     return Layout(
-        length_m=d.length_m, width_m=d.width_m, y_bottom_m=top, active_y_m=active, passive_y_m=passive,
+        length_m=d.length_m, width_m=d.width_m, y_bottom_m=base, active_y_m=active, passive_y_m=passive,
         obstacle_center_x_m=(-d.length_m + obstacle.center_from_tip_m) if obstacle else None,
         obstacle_top_y_m=top if obstacle else None,
         obstacle_radius_m=obstacle.radius_m if obstacle else None,

@@ -15,6 +15,7 @@ from workflows import scene as scenes
 from workflows.errors import InputError
 
 log = logging.getLogger("deapull")
+PACKAGES = ("deapull", "meshing", "fem_solver", "surrogate", "workflows")
 
 
 def _rank() -> int:
@@ -26,8 +27,10 @@ def _rank() -> int:
 
 def setup_logging(verbose: bool = False) -> None:
     level = (logging.DEBUG if verbose else logging.INFO) if _rank() == 0 else logging.WARNING
-    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s",
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s",
                         datefmt="%H:%M:%S")
+    for name in PACKAGES:
+        logging.getLogger(name).setLevel(level)
 
 
 def add_scene_args(p: argparse.ArgumentParser, required: bool = True) -> None:

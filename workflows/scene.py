@@ -71,9 +71,9 @@ class SceneInfo:
 
 @dataclass(frozen=True)
 class DEA:
-    length_m: float = _pos(0.030, "length along x, clamp at x = 0, free end at x = -length")
-    width_m: float = _pos(0.010, "width along z")
-    active_thickness_m: float = _pos(0.001, "thickness of the active stack (y)")
+    length_m: float = _pos(0.040, "length along x, clamp at x = 0, free end at x = -length")
+    width_m: float = _pos(0.020, "width along z")
+    active_thickness_m: float = _pos(0.002, "thickness of the active stack (y)")
     passive_thickness_m: float = _pos(0.001, "thickness of the passive layer (y)")
     film_thickness_m: float = _pos(10e-6, "thickness of one dielectric film; field = V / film")
     youngs_modulus_Pa: float = _pos(0.56e6, "Young's modulus of both layers")
@@ -83,6 +83,8 @@ class DEA:
     material: str = _choice("neo_hookean", ("neo_hookean", "gent"), "hyperelastic law")
     gent_locking_I1: float = _pos(100.0, "Gent J_m: I1 - 3 at locking (material = gent)")
     active_side: str = _choice("top", ("top", "bottom"), "which layer carries the electrodes")
+    clamp_gap_m: float = _nonneg(0.0, "height of the clamped underside above the coin's / stop's top face; "
+                                      "gravity sag closes it (pre-load)")
 
 
 @dataclass(frozen=True)
@@ -90,10 +92,11 @@ class Coin:
     radius_m: float = _pos(0.005, "coin radius")
     height_m: float = _pos(0.00225, "coin height (y); the DEA rests on its top face")
     density_kg_m3: float = _pos(7700.0, "coin density; mass = mesh volume x density")
+    edge_radius_m: float = _pos(0.0003, "fillet radius of the coin's top rim")
     mu_t: float = _nonneg(0.55, "Coulomb friction DEA-coin (top)")
     mu_b: float = _nonneg(0.20, "Coulomb friction coin-ground (bottom)")
-    center_from_tip_m: float = _num(0.003, doc="x distance from the DEA free end to the coin centre, "
-                                               "positive toward the clamp")
+    center_from_tip_m: float = _num(0.003, doc="x distance from the DEA's free end to the coin centre, "
+                                               "toward the clamp (< radius_m: the tip rests on the top face)")
 
 
 @dataclass(frozen=True)
@@ -101,14 +104,15 @@ class Stop:
     height_m: float = _pos(0.00225, "height of the fixed rigid stop's top face (y)")
     radius_m: float = _pos(0.005, "radius of the stop's disc footprint")
     center_from_tip_m: float = _num(0.003, doc="x distance from the free end to the stop centre")
+    edge_radius_m: float = _pos(0.0003, "fillet radius of the stop's top rim")
     mu_t: float = _nonneg(0.55, "Coulomb friction DEA-stop")
 
 
 @dataclass(frozen=True)
 class Contact:
-    penalty_scale: float = _pos(1.0, "normal penalty = penalty_scale * E / h_cell (N/m^3)")
-    slip_regularisation_m: float = _pos(1e-6, "slip at which regularised Coulomb friction reaches "
-                                               "~70 % of mu*p")
+    penalty_scale: float = _pos(10.0, "normal penalty = penalty_scale * E / h_cell (N/m^3)")
+    slip_rate_regularisation_m_s: float = _pos(1e-4, "slip rate at which regularised Coulomb friction "
+                                                      "reaches ~70 % of mu*p")
 
 
 @dataclass(frozen=True)
@@ -137,8 +141,9 @@ class Solver:
     newton_rtol: float = _pos(1e-8, "relative residual tolerance")
     newton_atol: float = _pos(1e-10, "absolute residual tolerance")
     newton_max_it: int = _num(25, lo=0, integer=True, doc="Newton iterations per attempt")
-    lag_jacobian: int = _num(1, lo=-2, lo_open=False, integer=True,
-                             doc="PETSc -snes_lag_jacobian: 1 = full Newton, k = refactor every k iterations")
+    jacobian_reuse_ratio: float = _num(0.1, lo=0.0, hi=1.0, lo_open=False, hi_open=True,
+                                       doc="keep the factorised Jacobian while each Newton iteration cuts the "
+                                           "residual by this factor; 0 = full Newton")
     quadrature_degree: int = _num(4, lo=0, integer=True, doc="quadrature degree of all integrals")
     coupling_tol_m: float = _pos(1e-10, "coin position change at which the coin-DEA iteration has converged")
     coupling_max_it: int = _num(30, lo=0, integer=True, doc="coin-DEA iterations per step")
@@ -149,7 +154,7 @@ class Mesh:
     cell: str = _choice("hexahedron", ("hexahedron", "tetrahedron"), "cell type of the DEA mesh")
     order: int = _num(2, lo=1, hi=2, lo_open=False, integer=True, doc="polynomial degree of u (pressure: order-1)")
     level: int = _num(0, lo=0, lo_open=False, hi=4, integer=True, doc="uniform refinement: divisions x 2^level")
-    n_length: int = _num(12, lo=0, integer=True, doc="divisions along the length (x)")
+    n_length: int = _num(16, lo=0, integer=True, doc="divisions along the length (x)")
     n_width: int = _num(2, lo=0, integer=True, doc="divisions across the width (z)")
     n_active: int = _num(1, lo=0, integer=True, doc="divisions through the active stack")
     n_passive: int = _num(1, lo=0, integer=True, doc="divisions through the passive layer")
@@ -269,6 +274,11 @@ def _check_consistency(scene: Scene) -> None:
     if d.film_thickness_m > d.active_thickness_m:
         raise SceneError(f"dea.film_thickness_m = {d.film_thickness_m!r}: must be <= dea.active_thickness_m "
                          f"= {d.active_thickness_m!r}")
+    for name in OPTIONAL_SECTIONS:
+        ob = getattr(scene, name)
+        if ob is not None and ob.edge_radius_m >= min(ob.radius_m, ob.height_m):
+            raise SceneError(f"{name}.edge_radius_m = {ob.edge_radius_m!r}: must be < {name}.radius_m and "
+                             f"< {name}.height_m")
     if scene.coin is not None and scene.stop is not None:
         raise SceneError("[coin] and [stop]: a scene has at most one of them")
     if scene.load.end_time_s < scene.time.dt_max_s:

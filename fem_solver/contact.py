@@ -1,0 +1,83 @@
+"""Penalty contact and regularised Coulomb friction of the DEA's underside on a rigid
+upright cylinder (the coin, or a fixed stop), by its signed distance.
+
+The obstacle is the cylinder of radius r around the vertical axis through
+(x_c0 + X, ·, 0), below the plane y = y_top, X its displacement along x, its top rim
+rounded with a fillet of radius r_f (a real coin's rim is rounded; a sharp corner would
+give a normal that jumps from e_y to e_ρ). For a point of the DEA at current position
+x = X_ref + u, with ρ its distance from the axis, q = (ρ − (r − r_f), x_y − (y_top − r_f))::
+
+    distance     d   = |q| − r_f                on the fillet (both q > 0)
+                     = max(q_ρ, q_y) − r_f      elsewhere (flat top or side wall)
+    penetration  δ   = ⟨−d⟩
+    normal       n   = q/|q| on the fillet, else e_y or e_ρ (outward)
+    traction     p_n = k_n δ,                       k_n = penalty_scale · E / h
+    slip rate    s   = (Δu − ΔX e_x) / Δt,  s_T = s − (s·n) n
+    friction     t_T = −μ p_n s_T / √(|s_T|² + ε_v²)
+
+so both the flat top face and the rim / side wall are obstacles: a DEA tip that curls
+over the far rim pushes on the side wall. The normal part is an energy (k_n/2 δ²);
+friction is not, so it enters the residual directly; UFL differentiates both. The
+regularisation is on the slip *rate* (ε_v in m/s), so results do not depend on the
+time step as Δt → 0; below ε_v friction acts as a stiff viscous stick.
+
+The force of the DEA on the obstacle is −∫ (p_n n + t_T) ds: Fx its x component, and
+Fy = ∫ (p_n n + t_T)_y ds the pressing force, positive downward.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import ufl
+
+
+@dataclass
+class ObstacleTerms:
+    energy: object             # normal penalty energy (UFL form)
+    friction_residual: object  # friction virtual work (UFL form, residual sign)
+    Fx: object                 # force of the DEA on the obstacle along x (UFL form)
+    Fy: object                 # pressing force, positive downward (UFL form)
+    penalty_N_m3: float
+
+
+def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, radius, edge_radius, mu,
+                  penalty_N_m3, slip_rate_reg_m_s):
+    """UFL terms of penalty contact and regularised Coulomb friction against a rigid cylinder.
+
+    Parameters
+    ----------
+    u, u_old, v : displacement, its value at the last accepted step, test function
+    X, X_old : Constants, obstacle displacement along x now and at the last accepted step (m)
+    dt : Constant, the step (s)
+    ds_contact : measure restricted to the DEA's contact surface
+    center_x0, top_y, radius : obstacle geometry in the reference configuration (m)
+    edge_radius : fillet radius of the top rim (m), < radius
+    mu : friction coefficient DEA–obstacle (Constant or float)
+    penalty_N_m3 : normal penalty stiffness k_n
+    slip_rate_reg_m_s : friction regularisation ε_v (m/s)
+    """
+    x = ufl.SpatialCoordinate(ds_contact.ufl_domain()) + u
+    rx, rz = x[0] - center_x0 - X, x[2]
+    rho = ufl.sqrt(rx ** 2 + rz ** 2 + (1e-9 * radius) ** 2)
+    e_y, e_rho = ufl.as_vector((0.0, 1.0, 0.0)), ufl.as_vector((rx / rho, 0.0, rz / rho))
+    q_r, q_y = rho - (radius - edge_radius), x[1] - (top_y - edge_radius)
+    # 0/1 indicators times smooth branches (FFCx cannot factor conditionals whose branches
+    # differ in their dependence on the arguments)
+    corner = ufl.conditional(ufl.And(ufl.gt(q_r, 0.0), ufl.gt(q_y, 0.0)), 1.0, 0.0)
+    on_top = ufl.conditional(ufl.gt(q_y, q_r), 1.0, 0.0)
+    q = ufl.sqrt(q_r ** 2 + q_y ** 2 + (1e-9 * radius) ** 2)
+    distance = corner * q + (1 - corner) * (on_top * q_y + (1 - on_top) * q_r) - edge_radius
+    n = corner * (q_r * e_rho + q_y * e_y) / q + (1 - corner) * (on_top * e_y + (1 - on_top) * e_rho)
+    depth = ufl.max_value(-distance, 0.0)
+    pn = penalty_N_m3 * depth
+    s = (u - u_old - (X - X_old) * ufl.as_vector((1.0, 0.0, 0.0))) / dt
+    s_T = s - ufl.dot(s, n) * n
+    t_T = -mu * pn * s_T / ufl.sqrt(ufl.dot(s_T, s_T) + slip_rate_reg_m_s ** 2)
+    traction = pn * n + t_T        # on the DEA, from the obstacle
+    return ObstacleTerms(
+        energy=0.5 * penalty_N_m3 * depth ** 2 * ds_contact,
+        friction_residual=-ufl.dot(t_T, v) * ds_contact,
+        Fx=-traction[0] * ds_contact,
+        Fy=traction[1] * ds_contact,
+        penalty_N_m3=penalty_N_m3,
+    )

@@ -1,0 +1,281 @@
+"""The DEA's nonlinear problem for one scene: spaces, energy, residual, Newton (PETSc SNES).
+
+Only what the scene needs is assembled: no pressure for a compressible pure-displacement
+scene, no electrostatic term when the voltage stays 0, no gravity at g = 0, no contact or
+friction without a coin or stop, no potential unless ``solver.electrostatics = "coupled"``.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import dolfinx
+import numpy as np
+import ufl
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from fem_solver import compat, contact, electro, materials
+from meshing import groups
+from meshing.layout import layout
+
+log = logging.getLogger(__name__)
+
+SNES_REASONS = {getattr(PETSc.SNES.ConvergedReason, k): k for k in dir(PETSc.SNES.ConvergedReason)
+                if not k.startswith("_") and isinstance(getattr(PETSc.SNES.ConvergedReason, k), int)}
+
+
+@dataclass
+class SolveResult:
+    converged: bool
+    reason: str
+    iterations: int
+    residual: float
+
+
+class DEAProblem:
+    """Quasi-static electro-hyperelastic DEA, optionally in frictional contact with an obstacle.
+
+    Parameters
+    ----------
+    scene : workflows.scene.Scene
+    mesh, cell_tags, facet_tags : the DEA mesh (``fem_solver.compat.read_mesh``)
+    """
+
+    def __init__(self, scene, mesh, cell_tags, facet_tags):
+        self.scene, self.mesh, self.comm = scene, mesh, mesh.comm
+        self.layout = layout(scene)
+        d, sv = scene.dea, scene.solver
+        self.mixed = sv.formulation == "mixed"
+        self.coupled = sv.electrostatics == "coupled"
+        self.has_voltage = scene.load.voltage_max_V > 0
+        self.has_gravity = scene.gravity_m_s2 > 0
+        self.obstacle = scene.coin or scene.stop
+
+        order = scene.mesh.order
+        ue = compat.element("Lagrange", mesh, order, shape=(3,))
+        elements = [ue]
+        if self.mixed:
+            elements.append(compat.element("Lagrange", mesh, max(order - 1, 1)))
+        if self.coupled:
+            elements.append(compat.element("Lagrange", mesh, order))
+        self.W = compat.function_space(mesh, compat.mixed_element(*elements) if len(elements) > 1 else ue)
+        self.w = dolfinx.fem.Function(self.W, name="state")
+        self.w_old = dolfinx.fem.Function(self.W)
+        self.w_older = dolfinx.fem.Function(self.W)
+        parts = ufl.split(self.w) if len(elements) > 1 else (self.w,)
+        old = ufl.split(self.w_old) if len(elements) > 1 else (self.w_old,)
+        self.u, self.u_old = parts[0], old[0]
+        self.p = parts[1] if self.mixed else None
+        self.phi = parts[-1] if self.coupled else None
+
+        self.voltage = dolfinx.fem.Constant(mesh, 0.0)
+        self.X = dolfinx.fem.Constant(mesh, 0.0)
+        self.X_old = dolfinx.fem.Constant(mesh, 0.0)
+        self.dt = dolfinx.fem.Constant(mesh, 1.0)
+        self.gravity_scale = dolfinx.fem.Constant(mesh, 1.0)
+
+        qd = sv.quadrature_degree
+        self.dx, self.ds = compat.integration_measures(mesh, cell_tags, facet_tags, qd)
+        self._tip_measure(qd)
+        self._build_forms(cell_tags, facet_tags)
+        self._build_snes()
+
+    # --- forms ---------------------------------------------------------------------
+
+    def _tip_measure(self, qd):
+        L = self.layout.length_m
+        fdim = self.mesh.topology.dim - 1
+        tip = dolfinx.mesh.locate_entities_boundary(self.mesh, fdim, lambda x: np.isclose(x[0], -L))
+        tags = dolfinx.mesh.meshtags(self.mesh, fdim, np.sort(tip).astype(np.int32),
+                                     np.ones(len(tip), dtype=np.int32))
+        self.ds_tip = ufl.Measure("ds", domain=self.mesh, subdomain_data=tags, subdomain_id=1,
+                                  metadata={"quadrature_degree": qd})
+
+    def _build_forms(self, cell_tags, facet_tags):
+        sc, d = self.scene, self.scene.dea
+        u = self.u
+        F = ufl.Identity(3) + ufl.grad(u)
+        psi = materials.mixed_energy(F, self.p, d) if self.mixed else materials.displacement_energy(F, d)
+        energy = psi * self.dx
+        if self.has_voltage:
+            eps = electro.permittivity(d)
+            E0 = -ufl.grad(self.phi) if self.coupled else electro.nominal_field(self.voltage, d)
+            energy += electro.electrostatic_energy(F, E0, eps) * self.dx(groups.ACTIVE)
+        if self.has_gravity:
+            energy += self.gravity_scale * d.density_kg_m3 * sc.gravity_m_s2 * u[1] * self.dx
+        dw = ufl.TestFunction(self.W)
+        v = ufl.split(dw)[0] if self.W.num_sub_spaces else dw
+        self.contact = None
+        if self.obstacle is not None:
+            lay = self.layout
+            h = d.length_m / (sc.mesh.n_length * 2 ** sc.mesh.level)
+            self.mu_t = dolfinx.fem.Constant(self.mesh, float(self.obstacle.mu_t))
+            self.contact = contact.contact_terms(
+                u, self.u_old, v, self.X, self.X_old, self.dt, self.ds(groups.DEA_CONTACT),
+                center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
+                edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=sc.contact.penalty_scale * d.youngs_modulus_Pa / h,
+                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
+            energy += self.contact.energy
+        residual = ufl.derivative(energy, self.w, dw)
+        if self.contact is not None:
+            residual += self.contact.friction_residual
+        jacobian = ufl.derivative(residual, self.w, ufl.TrialFunction(self.W))
+        self.F_form, self.J_form = compat.form(residual), compat.form(jacobian)
+        self.bcs = self._boundary_conditions(facet_tags, cell_tags)
+
+        self.tip_area = compat.assemble_scalar(compat.form(1.0 * self.ds_tip), self.comm)
+        self.tip_forms = [compat.form(u[i] * self.ds_tip) for i in range(3)]
+        self.volume_change_form = compat.form(abs(ufl.det(F) - 1) * self.dx)
+        self.volume = compat.assemble_scalar(compat.form(1.0 * self.dx), self.comm)
+        if self.contact is not None:
+            self.Fx_form, self.Fy_form = compat.form(self.contact.Fx), compat.form(self.contact.Fy)
+
+    def _boundary_conditions(self, facet_tags, cell_tags):
+        clamp = compat.facets_with_tag(facet_tags, groups.CLAMP)
+        sub = 0 if self.W.num_sub_spaces else None
+        bcs = [compat.dirichlet_zero(self.W, self.mesh, clamp, subspace=sub)]
+        if self.coupled:
+            k = self.W.num_sub_spaces - 1
+            bottom = compat.facets_with_tag(facet_tags, groups.ELECTRODE_BOTTOM)
+            top = compat.facets_with_tag(facet_tags, groups.ELECTRODE_TOP)
+            bcs.append(compat.dirichlet_zero(self.W, self.mesh, bottom, subspace=k))
+            passive = cell_tags.indices[cell_tags.values == groups.PASSIVE]
+            bcs.append(compat.dirichlet_zero_cells(self.W, self.mesh, passive, subspace=k))
+            _, collapsed = compat.locate_dofs_on_facets(self.W, self.mesh, top, subspace=k)
+            self.phi_top = dolfinx.fem.Function(collapsed)
+            bcs.append(compat.dirichlet_value(self.W, self.mesh, top, self.phi_top, subspace=k))
+        return bcs
+
+    # --- Newton --------------------------------------------------------------------
+
+    def _build_snes(self):
+        sv = self.scene.solver
+        self.b = compat.create_vector(self.F_form)
+        self.A = compat.create_matrix(self.J_form)
+        self.x = self.w.vector.copy()
+        snes = PETSc.SNES().create(self.comm)
+        prefix = f"deapull_{id(self)}_"
+        snes.setOptionsPrefix(prefix)
+        opts = PETSc.Options()
+        self._options = {"snes_linesearch_type": "basic", "snes_divergence_tolerance": -1}
+        for key, value in self._options.items():
+            opts[prefix + key] = value
+        snes.setType("newtonls")
+        snes.setFunction(self._eval_F, self.b)
+        snes.setJacobian(self._eval_J, self.A)
+        snes.setTolerances(rtol=sv.newton_rtol, atol=sv.newton_atol, stol=0.0, max_it=sv.newton_max_it)
+        ksp = snes.getKSP()
+        ksp.setType("preonly")
+        pc = ksp.getPC()
+        pc.setType("lu")
+        pc.setFactorSolverType("mumps")
+        snes.setErrorIfNotConverged(False)
+        snes.setFromOptions()
+        for key in self._options:
+            del opts[prefix + key]
+        self.snes = snes
+        self._jacobian_ready, self._jacobian_good, self._last_fnorm = False, False, 0.0
+        self.jacobian_assemblies = self.jacobian_reuses = 0
+
+    def _eval_F(self, snes, x, b):
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        x.copy(self.w.vector)
+        self.w.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        compat.assemble_residual(b, self.F_form, self.J_form, self.bcs, x)
+
+    def _eval_J(self, snes, x, A, P):
+        """Assemble the Jacobian, or keep the factorised one while Newton still converges.
+
+        With ``solver.jacobian_reuse_ratio = r > 0`` the last assembled (and factorised)
+        Jacobian is kept — across iterations and steps — as long as every iteration cuts
+        the residual by at least the factor r; PETSc then skips the refactorisation since
+        the matrix is unchanged. A slower iteration triggers a fresh Jacobian.
+        """
+        it, fnorm = snes.getIterationNumber(), snes.getFunctionNorm()
+        r = self.scene.solver.jacobian_reuse_ratio
+        reuse = r > 0 and self._jacobian_ready and (
+            fnorm <= r * self._last_fnorm if it > 0 else self._jacobian_good)
+        self._last_fnorm = fnorm
+        if reuse:
+            self.jacobian_reuses += 1
+            return
+        compat.assemble_jacobian(A, self.J_form, self.bcs)
+        self._jacobian_ready = True
+        self.jacobian_assemblies += 1
+
+    def set_load(self, voltage: float, X: float, dt: float) -> None:
+        """Voltage on the films, the obstacle's x displacement and the step for the next solve."""
+        self.voltage.value = voltage
+        self.X.value = X
+        self.dt.value = dt
+        if self.coupled:
+            self.phi_top.x.array[:] = electro.stack_voltage(voltage, self.scene.dea)
+
+    def enable_friction(self, on: bool) -> None:
+        """Switch DEA–obstacle friction on or off (off for the initial placement under gravity)."""
+        if self.contact is not None:
+            self.mu_t.value = float(self.obstacle.mu_t) if on else 0.0
+
+    def solve(self) -> SolveResult:
+        """Newton from the current state; the state is left at the last iterate."""
+        self.w.vector.copy(self.x)
+        self.snes.solve(None, self.x)
+        reason = self.snes.getConvergedReason()
+        # a Jacobian that brought a solve home in few iterations may start the next one
+        self._jacobian_good = reason > 0 and self.snes.getIterationNumber() <= 3
+        self.x.copy(self.w.vector)
+        self.w.x.scatter_forward()
+        finite = bool(self.comm.allreduce(np.isfinite(self.w.x.array).all(), op=MPI.LAND))
+        rnorm = self.snes.getFunctionNorm()
+        ok = reason > 0 and finite
+        name = SNES_REASONS.get(reason, str(reason)) if finite else "DIVERGED_FNORM_NAN"
+        return SolveResult(ok, name, self.snes.getIterationNumber(), float(rnorm))
+
+    # --- state ---------------------------------------------------------------------
+
+    def predict(self, ratio: float) -> None:
+        """Linear extrapolation from the two last accepted states: w = w_n + ratio (w_n − w_{n−1})."""
+        self.w.x.array[:] = self.w_old.x.array + ratio * (self.w_old.x.array - self.w_older.x.array)
+
+    def accept(self) -> None:
+        self.w_older.x.array[:] = self.w_old.x.array
+        self.w_old.x.array[:] = self.w.x.array
+        self.X_old.value = float(self.X.value)
+
+    def restore(self) -> None:
+        """Back to the last accepted state (after a failed attempt)."""
+        self.w.x.array[:] = self.w_old.x.array
+        self.X.value = float(self.X_old.value)
+
+    # --- outputs -------------------------------------------------------------------
+
+    def obstacle_forces(self) -> tuple[float, float]:
+        """(Fx, Fy): force of the DEA on the obstacle, N (Fy pressing, positive downward)."""
+        if self.contact is None:
+            return 0.0, 0.0
+        return (compat.assemble_scalar(self.Fx_form, self.comm), compat.assemble_scalar(self.Fy_form, self.comm))
+
+    def tip_displacement(self) -> np.ndarray:
+        """Mean displacement of the free-end face (m)."""
+        return np.array([compat.assemble_scalar(f, self.comm) for f in self.tip_forms]) / self.tip_area
+
+    def max_penetration(self) -> float:
+        """Largest penetration of the DEA's underside nodes into the obstacle's top face (m)."""
+        if self.contact is None:
+            return 0.0
+        lay = self.layout
+        coords, disp = compat.nodal_displacement(self.w, self.W.num_sub_spaces > 0)
+        under = np.isclose(coords[:, 1], lay.y_bottom_m)
+        x = coords[under] + disp[under]
+        rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
+        depth = -np.maximum(x[:, 1] - lay.obstacle_top_y_m, rho - lay.obstacle_radius_m)
+        local = float(np.max(depth, initial=0.0))
+        return self.comm.allreduce(local, op=MPI.MAX)
+
+    def mean_volume_change(self) -> float:
+        """Volume-averaged |J − 1| (0 for an exactly incompressible solution)."""
+        return compat.assemble_scalar(self.volume_change_form, self.comm) / self.volume
+
+    def num_dofs(self) -> int:
+        return self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs

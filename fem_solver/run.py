@@ -1,0 +1,100 @@
+"""One scene, end to end: mesh → dolfinx → time stepping → dataset (and optional XDMF fields)."""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import dolfinx
+import ufl
+from mpi4py import MPI
+
+from fem_solver import compat, dataset
+from fem_solver.problem import DEAProblem
+from fem_solver.stepping import Stepper, coin_travel
+from meshing.build import write_mesh
+
+log = logging.getLogger(__name__)
+
+
+def run_name(scene) -> str:
+    """File stem of a run: the setup (C3) or the scene name."""
+    return scene.setup or scene.scene.name
+
+
+def mesh_scene(scene, out_dir: Path, comm) -> tuple[Path, dict]:
+    """Mesh on rank 0 of ``comm``; every rank gets the path and the summary."""
+    result = write_mesh(scene, out_dir) if comm.rank == 0 else None
+    return comm.bcast(result, root=0)
+
+
+def coin_mass(mesh_path: Path, scene, comm) -> float:
+    """Coin mass = volume of its (second-order) mesh × density."""
+    coin, _, _ = compat.read_mesh(mesh_path, comm, volumes=("coin",))
+    volume = compat.assemble_scalar(compat.form(1.0 * ufl.dx(domain=coin)), comm)
+    return volume * scene.coin.density_kg_m3
+
+
+class FieldWriter:
+    """Displacement fields for ParaView every ``every`` accepted steps (XDMF)."""
+
+    def __init__(self, problem, path: Path, every: int):
+        self.p, self.every = problem, every
+        self.file = compat.xdmf_writer(problem.comm, path, problem.mesh)
+
+    def __call__(self, index: int, t: float) -> None:
+        if index % self.every == 0:
+            u = self.p.w.sub(0).collapse() if self.p.W.num_sub_spaces else self.p.w
+            u.name = "displacement"
+            self.file.write_function(compat.interpolate_to_p1(u, self.p.mesh), t)
+
+    def close(self) -> None:
+        self.file.close()
+
+
+def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, progress: bool = True) -> Path:
+    """Solve one scene (one setup) and write ``out_dir/<setup or scene>.nc``.
+
+    Raises
+    ------
+    fem_solver.stepping.SolveFailed
+        when a step cannot be solved after the cut-backs; no dataset is written then.
+    """
+    out_dir = Path(out_dir)
+    name = run_name(scene)
+    start = time.perf_counter()
+    mesh_path, summary = mesh_scene(scene, out_dir / "meshes" / name, comm)
+    mesh, cell_tags, facet_tags = compat.read_mesh(mesh_path, comm)
+    mass = coin_mass(mesh_path, scene, comm) if scene.coin is not None else None
+    problem = DEAProblem(scene, mesh, cell_tags, facet_tags)
+    log.info("%s: %d dofs on %d ranks, coin mass %s", name, problem.num_dofs(), comm.size,
+             f"{mass * 1e3:.4f} g" if mass else "-")
+    writer = FieldWriter(problem, out_dir / f"{name}_fields.xdmf", fields_every) if fields_every > 0 else None
+    try:
+        records = Stepper(problem, mass, progress=progress, on_step=writer).run()
+    finally:
+        if writer is not None:
+            writer.close()
+    wall = time.perf_counter() - start
+    attrs = {
+        "title": f"deapull FEM run {name}",
+        "scene": scene.scene.name, "setup": scene.setup, "scene_toml": scene.to_toml(),
+        "coin_mass_kg": mass if mass is not None else "",
+        "coin_mu_t": scene.coin.mu_t if scene.coin else "", "coin_mu_b": scene.coin.mu_b if scene.coin else "",
+        "coin_density_kg_m3": scene.coin.density_kg_m3 if scene.coin else "",
+        "gravity_m_s2": scene.gravity_m_s2, "voltage_max_V": scene.load.voltage_max_V,
+        "mesh_cells": compat.num_cells_global(mesh), "mesh_dofs": problem.num_dofs(),
+        "mesh_cell_type": scene.mesh.cell, "mesh_order": scene.mesh.order, "mesh_level": scene.mesh.level,
+        "mesh_min_quality": summary["min_quality_detj_ratio"],
+        "coin_volume_rel_error": summary.get("coin_volume_rel_error", ""),
+        "mpi_ranks": comm.size, "git_commit": dataset.git_commit(), "wall_time_total_s": wall,
+        "coin_travel_m": coin_travel(records), "steps": len(records),
+        **dataset.package_versions(),
+    }
+    path = out_dir / f"{name}.nc"
+    if comm.rank == 0:
+        dataset.write_atomic(dataset.to_dataset(records, attrs), path)
+    comm.barrier()
+    log.info("%s: %d points, coin travel %.3f mm, %.1f s -> %s", name, len(records),
+             -coin_travel(records) * 1e3, wall, path)
+    return path
