@@ -4,12 +4,13 @@ PY := .venv/bin/python
 DEAPULL := .venv/bin/deapull
 NP ?= 2
 OUT ?= out
+DATA ?= data
 export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
 
-.PHONY: help setup demo test mesh clean
+.PHONY: help setup demo test mesh solve sweep bench-fem bench-surrogate fidelity stability experiments clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -17,8 +18,9 @@ help: ## list the targets
 setup: ## install apt packages, the venv, torch (CPU) and the project (idempotent)
 	@bash scripts/setup.sh
 
-demo: setup ## the main job on the default scene (coin_pull, setup C3)
-	$(DEAPULL) mesh --scene coin_pull --out $(OUT)/demo/mesh
+demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3, dataset and plot in out/demo
+	$(DEAPULL) solve --scene coin_pull --out $(OUT)/demo
+	$(DEAPULL) plot $(OUT)/demo/C3.nc --out $(OUT)/demo/C3.png
 
 test: setup ## run the test suite (serial and mpirun -n 2 checks)
 	$(PY) -m pytest -q
@@ -26,5 +28,26 @@ test: setup ## run the test suite (serial and mpirun -n 2 checks)
 mesh: setup ## mesh the default scene into $(OUT)/mesh
 	$(DEAPULL) mesh --scene coin_pull --out $(OUT)/mesh
 
-clean: ## remove generated output (keeps .venv)
+solve: setup ## FEM solve of one setup: make solve SETUP=C5
+	$(DEAPULL) solve --scene coin_pull --setup $(or $(SETUP),C3) --out $(DATA)
+
+sweep: setup ## the 8 setups under mpirun -n $(NP) into $(DATA)/ (resumes if interrupted)
+	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull --out $(DATA)
+
+bench-fem: setup ## FEM wall time, travel error vs a finer mesh, 8-setup sweep; beside ABAQUS 130 s
+	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
+
+fidelity: setup ## error against run time ladder on coin_pull C3 (issue 4)
+	$(MPIRUN) $(DEAPULL) fidelity --scene coin_pull --setup C3 --out $(OUT)/fidelity
+
+stability: setup ## stiff and extreme cases (issue 4)
+	$(MPIRUN) $(DEAPULL) stability --out $(OUT)/stability
+
+bench-surrogate: setup ## 1 s rollout time of each surrogate model (needs $(DATA) from make sweep)
+	$(PY) bench/bench_surrogate.py --data $(DATA)
+
+experiments: setup ## the paper's six sliding sets for every model (needs $(DATA))
+	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments
+
+clean: ## remove generated output (keeps .venv and data/)
 	rm -rf $(OUT) .pytest_cache

@@ -38,6 +38,8 @@ VARIABLES = {
     "tip_ux": ("m", "mean x displacement of the DEA's free-end face"),
     "tip_uy": ("m", "mean y displacement of the DEA's free-end face"),
     "tip_uz": ("m", "mean z displacement of the DEA's free-end face"),
+    "mean_abs_J_minus_1": ("1", "volume average of |J - 1| (incompressibility check)"),
+    "volume_change": ("1", "relative change of the DEA's volume, (integral of J - V0) / V0"),
     "wall_time_s": ("s", "wall time of the step"),
 }
 REQUIRED = ("t", "x", "u", "V", "dt", "Fx", "Fy")

@@ -127,6 +127,7 @@ class DEAProblem:
         self.tip_area = compat.assemble_scalar(compat.form(1.0 * self.ds_tip), self.comm)
         self.tip_forms = [compat.form(u[i] * self.ds_tip) for i in range(3)]
         self.volume_change_form = compat.form(abs(ufl.det(F) - 1) * self.dx)
+        self.net_volume_change_form = compat.form((ufl.det(F) - 1) * self.dx)
         self.volume = compat.assemble_scalar(compat.form(1.0 * self.dx), self.comm)
         if self.contact is not None:
             self.Fx_form, self.Fy_form = compat.form(self.contact.Fx), compat.form(self.contact.Fy)
@@ -276,6 +277,10 @@ class DEAProblem:
     def mean_volume_change(self) -> float:
         """Volume-averaged |J − 1| (0 for an exactly incompressible solution)."""
         return compat.assemble_scalar(self.volume_change_form, self.comm) / self.volume
+
+    def net_volume_change(self) -> float:
+        """(∫ J dX − V₀) / V₀: the DEA's relative change of volume."""
+        return compat.assemble_scalar(self.net_volume_change_form, self.comm) / self.volume
 
     def num_dofs(self) -> int:
         return self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs

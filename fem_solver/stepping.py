@@ -53,6 +53,8 @@ class StepRecord:
     tip_ux: float
     tip_uy: float
     tip_uz: float
+    mean_abs_J_minus_1: float
+    volume_change: float
     wall_time_s: float
 
 
@@ -128,7 +130,9 @@ class Stepper:
         rec = StepRecord(t=t, x=self.coin.x, u=self.coin.u, V=V, dt=dt, Fx=Fx, Fy=Fy, newton_iterations=its,
                          coupling_iterations=coupling_its, cutbacks=cutbacks, penetration_m=p.max_penetration(),
                          stick=int(self.coin.stick), force_balance_residual_N=residual, tip_ux=tip[0],
-                         tip_uy=tip[1], tip_uz=tip[2], wall_time_s=wall)
+                         tip_uy=tip[1], tip_uz=tip[2], mean_abs_J_minus_1=p.mean_volume_change(),
+                         volume_change=p.net_volume_change(),
+                         wall_time_s=wall)
         values = np.array([v for v in asdict(rec).values()], dtype=float)
         if not np.all(np.isfinite(values)):
             raise SolveFailed(t, V, "NON_FINITE_OUTPUT", len(self.records) - 1, self.records)

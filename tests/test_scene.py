@@ -100,3 +100,10 @@ def test_every_key_is_documented():
     rows = scenes.describe_keys()
     assert all(doc for *_, doc in rows)
     assert {"coin.density_kg_m3", "load.voltage_max_V", "gravity_m_s2", "mesh.level"} <= {r[0] for r in rows}
+
+
+def test_readme_documents_every_key():
+    from tests.conftest import REPO
+    readme = (REPO / "README.md").read_text()
+    missing = [key for key, *_ in scenes.describe_keys() if f"`{key}`" not in readme]
+    assert not missing, f"README lacks {missing}"

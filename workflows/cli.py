@@ -68,6 +68,12 @@ def cmd_mesh(args) -> int:
     return 0
 
 
+def cmd_plot(args) -> int:
+    from workflows.report import plot_run
+    print(f"wrote {plot_run(args.data, args.out)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="deapull", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -87,6 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=cmd_mesh)
 
+    p = sub.add_parser("plot", help="plot one FEM dataset (x, u, Fx, Fy, V against t)")
+    p.add_argument("data", help="dataset file (.nc)")
+    p.add_argument("--out", required=True, help="PNG file")
+    p.set_defaults(func=cmd_plot)
+
     for module in _stage_clis():
         module.register(sub)
     return parser
@@ -96,7 +107,7 @@ def _stage_clis():
     """The stages that add sub-commands of their own (imported lazily: dolfinx and torch are slow)."""
     import importlib
     out = []
-    for name in ("fem_solver.cli", "surrogate.cli"):
+    for name in ("fem_solver.cli", "fem_solver.studies_cli", "surrogate.cli"):
         try:
             out.append(importlib.import_module(name))
         except ModuleNotFoundError as err:
