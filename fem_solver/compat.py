@@ -179,11 +179,16 @@ def dirichlet_zero_cells(space, mesh, cells, subspace):
     return dolfinx.fem.dirichletbc(dolfinx.fem.Function(collapsed), dofs, sub)
 
 
-def nodal_displacement(w, has_subspaces: bool):
-    """(coordinates, displacement) of every local node of the displacement field, shape (n, 3)."""
-    u = w.sub(0).collapse() if has_subspaces else w
-    coords = u.function_space.tabulate_dof_coordinates()
-    return coords, u.x.array.reshape(-1, 3)
+def displacement_dofs(space, mixed: bool):
+    """Node coordinates (n, 3) of the displacement field and the indices (n, 3) of its dofs
+    in the (mixed) space's local array, for reading nodal displacements without a copy."""
+    if mixed:
+        collapsed, parent = space.sub(0).collapse()
+        parent = np.asarray(parent)
+    else:
+        collapsed = space
+        parent = np.arange(len(space.tabulate_dof_coordinates()) * 3)
+    return collapsed.tabulate_dof_coordinates(), parent.reshape(-1, 3)
 
 
 def dirichlet_value(space, mesh, facets, value: dolfinx.fem.Function, subspace):
@@ -203,13 +208,19 @@ def create_matrix(compiled):
     return dolfinx.fem.petsc.create_matrix(compiled)
 
 
-def assemble_residual(b, compiled_F, compiled_J, bcs, x):
-    """b = F(x) with lifted, set Dirichlet values so that the update enforces bcs (x - g)."""
+def assemble_residual(b, compiled_F, compiled_J, bcs, x, lifting=True):
+    """b = F(x), with the Dirichlet rows set to x − g so that the Newton update enforces g.
+
+    ``lifting=False`` skips the lifting of the Jacobian's bc columns: exact when every bc is
+    homogeneous and the state already satisfies it (the clamp), and it saves an element-
+    matrix pass over the cells next to the bcs in every residual evaluation.
+    """
     from petsc4py import PETSc
     with b.localForm() as loc:
         loc.set(0.0)
     dolfinx.fem.petsc.assemble_vector(b, compiled_F)
-    dolfinx.fem.petsc.apply_lifting(b, [compiled_J], bcs=[bcs], x0=[x], scale=-1.0)
+    if lifting:
+        dolfinx.fem.petsc.apply_lifting(b, [compiled_J], bcs=[bcs], x0=[x], scale=-1.0)
     b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     dolfinx.fem.petsc.set_bc(b, bcs, x, -1.0)
 

@@ -59,12 +59,14 @@ class DEAProblem:
             elements.append(compat.element("Lagrange", mesh, max(order - 1, 1)))
         if self.coupled:
             elements.append(compat.element("Lagrange", mesh, order))
-        self.W = compat.function_space(mesh, compat.mixed_element(*elements) if len(elements) > 1 else ue)
+        self.has_parts = len(elements) > 1          # mixed space (u, [p], [phi]) or plain u
+        self.W = compat.function_space(mesh, compat.mixed_element(*elements) if self.has_parts else ue)
         self.w = dolfinx.fem.Function(self.W, name="state")
         self.w_old = dolfinx.fem.Function(self.W)
         self.w_older = dolfinx.fem.Function(self.W)
-        parts = ufl.split(self.w) if len(elements) > 1 else (self.w,)
-        old = ufl.split(self.w_old) if len(elements) > 1 else (self.w_old,)
+        parts = ufl.split(self.w) if self.has_parts else (self.w,)
+        old = ufl.split(self.w_old) if self.has_parts else (self.w_old,)
+        self.parts = parts
         self.u, self.u_old = parts[0], old[0]
         self.p = parts[1] if self.mixed else None
         self.phi = parts[-1] if self.coupled else None
@@ -105,8 +107,8 @@ class DEAProblem:
         if self.has_gravity:
             energy += self.gravity_scale * d.density_kg_m3 * sc.gravity_m_s2 * u[1] * self.dx
         dw = ufl.TestFunction(self.W)
-        v = ufl.split(dw)[0] if self.W.num_sub_spaces else dw
-        self.contact = None
+        v = ufl.split(dw)[0] if self.has_parts else dw
+        self.contact, self._underside = None, None
         if self.obstacle is not None:
             lay = self.layout
             h = d.length_m / (sc.mesh.n_length * 2 ** sc.mesh.level)
@@ -134,10 +136,10 @@ class DEAProblem:
 
     def _boundary_conditions(self, facet_tags, cell_tags):
         clamp = compat.facets_with_tag(facet_tags, groups.CLAMP)
-        sub = 0 if self.W.num_sub_spaces else None
+        sub = 0 if self.has_parts else None
         bcs = [compat.dirichlet_zero(self.W, self.mesh, clamp, subspace=sub)]
         if self.coupled:
-            k = self.W.num_sub_spaces - 1
+            k = len(self.parts) - 1
             bottom = compat.facets_with_tag(facet_tags, groups.ELECTRODE_BOTTOM)
             top = compat.facets_with_tag(facet_tags, groups.ELECTRODE_TOP)
             bcs.append(compat.dirichlet_zero(self.W, self.mesh, bottom, subspace=k))
@@ -176,27 +178,27 @@ class DEAProblem:
         for key in self._options:
             del opts[prefix + key]
         self.snes = snes
-        self._jacobian_ready, self._jacobian_good, self._last_fnorm = False, False, 0.0
+        self._jacobian_ready, self._last_fnorm = False, 0.0
         self.jacobian_assemblies = self.jacobian_reuses = 0
 
     def _eval_F(self, snes, x, b):
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         x.copy(self.w.vector)
         self.w.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        compat.assemble_residual(b, self.F_form, self.J_form, self.bcs, x)
+        compat.assemble_residual(b, self.F_form, self.J_form, self.bcs, x, lifting=self.coupled)
 
     def _eval_J(self, snes, x, A, P):
         """Assemble the Jacobian, or keep the factorised one while Newton still converges.
 
         With ``solver.jacobian_reuse_ratio = r > 0`` the last assembled (and factorised)
-        Jacobian is kept — across iterations and steps — as long as every iteration cuts
-        the residual by at least the factor r; PETSc then skips the refactorisation since
-        the matrix is unchanged. A slower iteration triggers a fresh Jacobian.
+        Jacobian starts every solve and is kept — across iterations and steps — as long as
+        each iteration cuts the residual by at least the factor r; PETSc then skips the
+        refactorisation since the matrix is unchanged. A slower iteration, or a failed
+        solve, triggers a fresh Jacobian.
         """
         it, fnorm = snes.getIterationNumber(), snes.getFunctionNorm()
         r = self.scene.solver.jacobian_reuse_ratio
-        reuse = r > 0 and self._jacobian_ready and (
-            fnorm <= r * self._last_fnorm if it > 0 else self._jacobian_good)
+        reuse = r > 0 and self._jacobian_ready and (it == 0 or fnorm <= r * self._last_fnorm)
         self._last_fnorm = fnorm
         if reuse:
             self.jacobian_reuses += 1
@@ -223,8 +225,8 @@ class DEAProblem:
         self.w.vector.copy(self.x)
         self.snes.solve(None, self.x)
         reason = self.snes.getConvergedReason()
-        # a Jacobian that brought a solve home in few iterations may start the next one
-        self._jacobian_good = reason > 0 and self.snes.getIterationNumber() <= 3
+        if reason <= 0:
+            self._jacobian_ready = False   # a failed attempt starts over from a fresh Jacobian
         self.x.copy(self.w.vector)
         self.w.x.scatter_forward()
         finite = bool(self.comm.allreduce(np.isfinite(self.w.x.array).all(), op=MPI.LAND))
@@ -266,9 +268,12 @@ class DEAProblem:
         if self.contact is None:
             return 0.0
         lay = self.layout
-        coords, disp = compat.nodal_displacement(self.w, self.W.num_sub_spaces > 0)
-        under = np.isclose(coords[:, 1], lay.y_bottom_m)
-        x = coords[under] + disp[under]
+        if self._underside is None:
+            coords, dofs = compat.displacement_dofs(self.W, self.has_parts)
+            under = np.isclose(coords[:, 1], lay.y_bottom_m)
+            self._underside = (coords[under], dofs[under])
+        coords, dofs = self._underside
+        x = coords + self.w.x.array[dofs]
         rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
         depth = -np.maximum(x[:, 1] - lay.obstacle_top_y_m, rho - lay.obstacle_radius_m)
         local = float(np.max(depth, initial=0.0))

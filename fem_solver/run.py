@@ -44,7 +44,7 @@ class FieldWriter:
 
     def __call__(self, index: int, t: float) -> None:
         if index % self.every == 0:
-            u = self.p.w.sub(0).collapse() if self.p.W.num_sub_spaces else self.p.w
+            u = self.p.w.sub(0).collapse() if self.p.has_parts else self.p.w
             u.name = "displacement"
             self.file.write_function(compat.interpolate_to_p1(u, self.p.mesh), t)
 

@@ -140,8 +140,8 @@ class Solver:
                                   "prescribed nominal field, or solve Gauss's law for the potential")
     newton_rtol: float = _pos(1e-8, "relative residual tolerance")
     newton_atol: float = _pos(1e-10, "absolute residual tolerance")
-    newton_max_it: int = _num(25, lo=0, integer=True, doc="Newton iterations per attempt")
-    jacobian_reuse_ratio: float = _num(0.1, lo=0.0, hi=1.0, lo_open=False, hi_open=True,
+    newton_max_it: int = _num(40, lo=0, integer=True, doc="Newton iterations per attempt")
+    jacobian_reuse_ratio: float = _num(0.3, lo=0.0, hi=1.0, lo_open=False, hi_open=True,
                                        doc="keep the factorised Jacobian while each Newton iteration cuts the "
                                            "residual by this factor; 0 = full Newton")
     quadrature_degree: int = _num(4, lo=0, integer=True, doc="quadrature degree of all integrals")
