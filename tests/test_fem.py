@@ -171,3 +171,14 @@ def test_sweep_resumes_after_interruption(tmp_path):
     assert "C2" in done.stdout and (tmp_path / "C2.nc").exists()
     ds = xr.open_dataset(tmp_path / "C2.nc")
     assert ds.attrs["complete"] == 1 and ds.attrs["setup"] == "C2"
+
+
+def test_xdmf_fields_for_paraview(tmp_path):
+    cmd = [sys.executable, "-m", "workflows", "solve", "--scene", "free_bending", "--out", str(tmp_path),
+           "--fields-every", "1"]
+    for o in BENDING:
+        cmd += ["--set", o]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    xdmf = (tmp_path / "free_bending_fields.xdmf").read_text()
+    assert xdmf.count('<Time Value=') == 3              # one field per accepted step (3 steps)
