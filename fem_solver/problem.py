@@ -45,7 +45,7 @@ class DEAProblem:
     def __init__(self, scene, mesh, cell_tags, facet_tags):
         self.scene, self.mesh, self.comm = scene, mesh, mesh.comm
         self.layout = layout(scene)
-        d, sv = scene.dea, scene.solver
+        sv = scene.solver
         self.mixed = sv.formulation == "mixed"
         self.coupled = sv.electrostatics == "coupled"
         self.has_voltage = scene.load.voltage_max_V > 0

@@ -5,7 +5,6 @@ import logging
 import time
 from pathlib import Path
 
-import dolfinx
 import ufl
 from mpi4py import MPI
 

@@ -1,0 +1,66 @@
+"""Sub-commands of the FEM studies: ``fidelity`` and ``stability`` (dolfinx is imported lazily).
+
+Both run under ``mpirun -n N`` like the sweep (cases over rank groups, one rank per case by
+default), resume after an interruption, and print their table on rank 0.
+"""
+from __future__ import annotations
+
+
+def _names(text: str) -> list[str] | None:
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    return names or None
+
+
+def cmd_fidelity(args) -> int:
+    from mpi4py import MPI
+
+    from fem_solver.fidelity import run_ladder, summary_table
+    rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, args.overrides,
+                      _names(args.only), args.ranks_per_case)
+    if MPI.COMM_WORLD.rank != 0:
+        return 0
+    print(summary_table(rows))
+    print(f"wrote {args.out}/fidelity.csv, fidelity.md, fidelity_pareto.png")
+    reference = next(r for r in rows if r.get("is_reference"))
+    return 0 if reference["status"] == "ok" else 1
+
+
+def cmd_stability(args) -> int:
+    from mpi4py import MPI
+
+    from fem_solver.stability import run_stability, summary_table
+    rows = run_stability(args.out, MPI.COMM_WORLD, args.protocol, _names(args.cases), args.overrides,
+                         args.ranks_per_case)
+    if MPI.COMM_WORLD.rank != 0:
+        return 0
+    print(summary_table(rows))
+    print(f"wrote {args.out}/stability.csv, stability.md")
+    return 1 if any(r["status"] == "error" for r in rows) else 0
+
+
+def _common(p) -> None:
+    p.add_argument("--out", required=True, help="output folder (cases/, CSV, Markdown)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one scene key in every case (validated like the file); repeatable")
+    p.add_argument("--ranks-per-case", type=int, default=1, help="ranks sharing one case's mesh (default 1)")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("fidelity", help="error against run time: ladder of meshes, elements and steps "
+                                        "(run under mpirun -n N; resumes)")
+    p.add_argument("--scene", default="coin_pull", help="scene (default coin_pull)")
+    p.add_argument("--setup", default=None, help="setup (default: the scene's, C3 for coin_pull)")
+    p.add_argument("--rungs", default="quick", choices=("quick", "full"),
+                   help="quick: base step end/100 plus the shipped step; full: the scene's steps (default quick)")
+    p.add_argument("--only", default="", help="comma-separated rung names (default: all; the reference is "
+                                              "always run)")
+    _common(p)
+    p.set_defaults(func=cmd_fidelity)
+
+    p = sub.add_parser("stability", help="stiff and extreme cases, each a row: converged or why not "
+                                         "(run under mpirun -n N; resumes)")
+    p.add_argument("--cases", default="", help="comma-separated case names (default: all)")
+    p.add_argument("--protocol", default="quick", choices=("quick", "full"),
+                   help="quick: 1 s ramp with base step 0.01 s; full: the scene's steps (default quick)")
+    _common(p)
+    p.set_defaults(func=cmd_stability)
