@@ -1,0 +1,239 @@
+"""The paper's six sliding experiment sets (§VI-A, Table II) for every model.
+
+Set i (i = 1..6) trains on C_i, early-stops on C_{i+1} and tests a recursive 1 s rollout
+on C_{i+2}. Every model kind is trained and evaluated on every set; the results are
+written as ``experiments.csv`` (one row per set and model), ``experiments.json``,
+``table.txt`` (a Table II with the paper's numbers beside ours, and the per-set errors),
+``x_error_boxplot.png`` (|x error| per set and model, the paper's Fig. 6) and
+``rollouts.png`` (x(t) of the FEM and of each model on each test setup). Each trained
+model is kept under ``set<i>/<kind>/``.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from surrogate import store
+from surrogate.data import load_sweep
+from surrogate.evaluate import METRICS, evaluate
+from surrogate.models import KINDS
+from surrogate.rollout import OutOfRangeWarning
+from surrogate.train import TrainConfig, train
+from workflows.errors import InputError
+
+log = logging.getLogger(__name__)
+
+SETS = {i: (f"C{i}", f"C{i + 1}", f"C{i + 2}") for i in range(1, 7)}
+#: Table II of the paper (MAE over the six test setups) and its §VI-A timings
+PAPER = {"mae_x_m": {"f": 0.34e-4, "lstm": 3.86e-4, "nn": 9.86e-4},
+         "mae_Fx_N": {"f": 3.68e-4}, "mae_Fy_N": {"f": 12.01e-4},
+         "rollout_ms": {"f": 700.0, "nn": 300.0, "lstm": 1200.0}}
+PAPER_FEM_S = 130.0
+LABELS = {"f": "f (paper law)", "f-coulomb": "f (Coulomb)", "nn": "NN", "lstm": "LSTM"}
+COLUMNS = ("set", "train", "val", "test", "model", "mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N",
+           "x_error_pct_travel", "max_abs_x_error_m", "final_x_error_m", "travel_m", "rollout_ms", "engine",
+           "diverged", "best_epoch", "epochs_run", "train_time_s", "out_of_range_warnings")
+
+
+def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=KINDS, sets=tuple(SETS)) -> list[dict]:
+    """Train and evaluate every model kind on every set; write the tables and plots.
+
+    Parameters
+    ----------
+    data_dir : str or pathlib.Path
+        Folder with ``C1.nc`` ... ``C8.nc``.
+    out_dir : str or pathlib.Path
+        Output folder (created).
+    base : TrainConfig
+        Training settings shared by all runs (its ``kind`` is replaced per model).
+    kinds : sequence of str
+        Model kinds to run.
+    sets : sequence of int
+        Which of the six sets to run.
+
+    Returns
+    -------
+    list of dict
+        One row per (set, model), the columns of :data:`COLUMNS`.
+    """
+    for i in sets:
+        if i not in SETS:
+            raise InputError(f"set {i} does not exist; the paper's sets are 1..6")
+    for kind in kinds:
+        if kind not in KINDS:
+            raise InputError(f"model {kind!r} is not a model; choose from {', '.join(KINDS)}")
+    needed = sorted({name for i in sets for name in SETS[i]}, key=lambda n: int(n[1:]))
+    data = load_sweep(data_dir, needed)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows, curves = [], {}
+    jobs = [(i, kind) for i in sets for kind in kinds]
+    for i, kind in tqdm(jobs, desc="experiments", unit="model", disable=None):
+        train_name, val_name, test_name = SETS[i]
+        result = train(replace(base, kind=kind), [data[train_name]], data[val_name])
+        store.save(result.model, out / f"set{i}" / kind, result.summary(), result.history)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", OutOfRangeWarning)
+            ev = evaluate(result.model, data[test_name])
+        for w in caught:
+            log.info("set %d: %s", i, w.message)
+        rows.append({**{k: ev.metrics.get(k) for k in COLUMNS}, "set": i, "train": train_name, "val": val_name,
+                     "test": test_name, "model": kind, "best_epoch": result.best_epoch,
+                     "epochs_run": len(result.history), "train_time_s": result.wall_time_s,
+                     "out_of_range_warnings": len(caught)})
+        curves[(i, kind)] = ev
+    text = summary_table(rows, kinds) + "\n\n" + per_set_table(rows, kinds)
+    (out / "table.txt").write_text(text + "\n")
+    _write_csv(out / "experiments.csv", rows)
+    (out / "experiments.json").write_text(json.dumps({"rows": rows, "paper": PAPER, "paper_fem_s": PAPER_FEM_S,
+                                                      "fem_wall_time_s": {n: d.wall_time_s for n, d in data.items()},
+                                                      "config": {k: v for k, v in vars(base).items() if k != "kind"}},
+                                                     indent=2, default=_json_default) + "\n")
+    plot_boxes(curves, kinds, sets, out / "x_error_boxplot.png")
+    plot_rollouts(curves, kinds, sets, out / "rollouts.png")
+    return rows
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: ("" if row[k] is None else row[k]) for k in COLUMNS})
+
+
+def _mean(rows: list[dict], kind: str, key: str):
+    """Mean of ``key`` over the sets where ``kind`` did not diverge (None if none)."""
+    values = [r[key] for r in rows if r["model"] == kind and r[key] is not None and not r["diverged"]]
+    return float(np.mean(values)) if values else None
+
+
+def _grid(lines: list[list[str]]) -> str:
+    widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
+    return "\n".join("  ".join(c.ljust(w) if j == 0 else c.rjust(w) for j, (c, w) in enumerate(zip(line, widths)))
+                     for line in lines)
+
+
+def summary_table(rows: list[dict], kinds=KINDS) -> str:
+    """Table II: mean over the sets run of each error, ours beside the paper's.
+
+    Rollouts that diverged are left out of the means and counted in the last row.
+    """
+    keys = ("mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N", "x_error_pct_travel", "rollout_ms")
+    head = ["mean over sets"] + [f"{LABELS[k]}" for k in kinds] + [f"paper {LABELS[k]}" for k in kinds
+                                                                   if any(k in PAPER[q] for q in PAPER)]
+    paper_kinds = [k for k in kinds if any(k in PAPER[q] for q in PAPER)]
+    lines = [head]
+    for key in keys:
+        label, unit, scale = METRICS[key]
+        cells = [f"{label} [{unit}]"]
+        for kind in kinds:
+            v = _mean(rows, kind, key)
+            cells.append("-" if v is None else f"{v / scale:.3g}")
+        for kind in paper_kinds:
+            v = PAPER.get(key, {}).get(kind)
+            cells.append("-" if v is None else f"{v / scale:.3g}")
+        lines.append(cells)
+    lines.append(["diverged rollouts"] + [str(sum(r["diverged"] for r in rows if r["model"] == k)) for k in kinds]
+                 + ["-"] * len(paper_kinds))
+    n_sets = len({r["set"] for r in rows})
+    return (f"Simulation error of a recursive 1 s rollout on the test setup, mean over {n_sets} set(s)\n"
+            f"(paper: Table II, ABAQUS FEM 1 s in {PAPER_FEM_S:.0f} s; paper timings are of its own code)\n"
+            + _grid(lines))
+
+
+def per_set_table(rows: list[dict], kinds=KINDS) -> str:
+    """MAE of x and x error (% of travel) per set and model, and which f leads."""
+    sets = sorted({r["set"] for r in rows})
+    head = ["set (train/val/test)"] + [f"{LABELS[k]} x [1e-4 m]" for k in kinds] + [f"{LABELS[k]} [%]" for k in kinds]
+    lines = [head]
+    by = {(r["set"], r["model"]): r for r in rows}
+    for i in sets:
+        r0 = next(r for r in rows if r["set"] == i)
+        cells = [f"{i} ({r0['train']}/{r0['val']}/{r0['test']})"]
+        cells += [_cell(by[(i, k)], "mae_x_m", 1e-4) for k in kinds]
+        cells += [_cell(by[(i, k)], "x_error_pct_travel", 1.0) for k in kinds]
+        lines.append(cells)
+    verdicts = []
+    baselines = [k for k in kinds if k in ("nn", "lstm")]
+    for f_kind in (k for k in kinds if k.startswith("f")):
+        if baselines:
+            ahead = sum(all(by[(i, f_kind)]["mae_x_m"] < by[(i, b)]["mae_x_m"] for b in baselines) for i in sets)
+            verdicts.append(f"{LABELS[f_kind]} ahead of {' and '.join(LABELS[b] for b in baselines)} "
+                            f"(MAE x) on {ahead}/{len(sets)} sets")
+    return _grid(lines) + ("\n" + "\n".join(verdicts) if verdicts else "")
+
+
+def _cell(row: dict, key: str, scale: float) -> str:
+    return "diverged" if row["diverged"] else f"{row[key] / scale:.3g}"
+
+
+def plot_boxes(curves: dict, kinds, sets, path: Path) -> Path:
+    """Box plots of |x error| over all rollout steps, grouped by set (paper Fig. 6)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(2.5 + 1.4 * len(sets), 4.2))
+    width = 0.8 / len(kinds)
+    for j, kind in enumerate(kinds):
+        pos = [i + (j - (len(kinds) - 1) / 2) * width for i in sets]
+        data = [np.maximum(curves[(i, kind)].abs_x_error, 1e-9) if not curves[(i, kind)].metrics["diverged"]
+                else np.array([]) for i in sets]
+        bp = ax.boxplot(data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=False)
+        for box in bp["boxes"]:
+            box.set_facecolor(f"C{j}")
+        ax.plot([], [], color=f"C{j}", lw=6, label=LABELS[kind])
+    ax.set_yscale("log")
+    ax.set_xticks(list(sets))
+    ax.set_xticklabels([f"{i}\n{'/'.join(SETS[i])}" for i in sets])
+    ax.set_ylabel("|x error| over the 1 s rollout (m, floor 1e-9)")
+    ax.set_xlabel("experiment set (train/val/test); no box: the rollout diverged")
+    ax.legend(fontsize=8, ncol=len(kinds), loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
+    ax.grid(True, axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_rollouts(curves: dict, kinds, sets, path: Path) -> Path:
+    """x(t) of the FEM and of each model on each set's test setup."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    cols = min(3, len(sets))
+    nrows = -(-len(sets) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.2 * nrows), squeeze=False)
+    for ax, i in zip(axes.flat, sets):
+        ev0 = curves[(i, kinds[0])]
+        ax.plot(ev0.t, ev0.x_fem * 1e3, "k-", lw=2.5, alpha=0.4, label="FEM")
+        for j, kind in enumerate(kinds):
+            ev = curves[(i, kind)]
+            label = LABELS[kind] + (" (diverged)" if ev.metrics["diverged"] else "")
+            ax.plot(ev.t, ev.x_model * 1e3, color=f"C{j}", lw=1, label=label)
+        travel_mm = 1e3 * ev0.metrics["travel_m"]
+        ax.set_ylim(-1.6 * travel_mm, 0.2 * travel_mm)
+        ax.set_title(f"set {i}: test {SETS[i][2]}", fontsize=9)
+        ax.legend(fontsize=6)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("x (mm)")
+        ax.grid(True, alpha=0.3)
+    for ax in list(axes.flat)[len(sets):]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

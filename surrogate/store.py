@@ -1,0 +1,96 @@
+"""A trained model on disk: ``model.pt`` (torch state dict) + ``model.json`` + ``history.csv``.
+
+``model.json`` holds everything needed to rebuild the model and to read it without torch:
+its kind and hyper-parameters, the normalisation of the training data, the training input
+range, the setups it saw (file, φ, V^T), the training configuration and outcome, and the
+package versions. Infinite values (e.g. no contact loss) are written as ``null``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from surrogate.models import InputRange, Normalisation, Surrogate, build
+from workflows.errors import InputError
+
+FORMAT = "deapull-surrogate/1"
+STATE, META, HISTORY = "model.pt", "model.json", "history.csv"
+
+
+class ModelFileError(InputError):
+    """A model folder that cannot be read back; the message names the file."""
+
+
+def save(model: Surrogate, out_dir: str | Path, training: dict | None = None, history: list | None = None) -> Path:
+    """Write ``model`` to ``out_dir`` (created); returns the folder.
+
+    Parameters
+    ----------
+    model : Surrogate
+    out_dir : str or pathlib.Path
+    training : dict, optional
+        What :meth:`surrogate.train.TrainResult.summary` returns (setups, configuration...).
+    history : list of dict, optional
+        Per-epoch losses, written as CSV.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"format": FORMAT, "kind": model.kind, "hyper_parameters": model.hparams,
+            "normalisation": model.norm.to_dict(), "input_range": model.input_range.to_dict(),
+            "training": training or {}, "versions": {"python": platform.python_version(),
+                                                     "torch": torch.__version__, "numpy": np.__version__}}
+    _atomic(out / STATE, lambda p: torch.save(model.state_dict(), p))
+    _atomic(out / META, lambda p: Path(p).write_text(json.dumps(_finite(meta), indent=2) + "\n"))
+    if history:
+        rows = [",".join(history[0])] + [",".join(f"{v:.9g}" for v in row.values()) for row in history]
+        _atomic(out / HISTORY, lambda p: Path(p).write_text("\n".join(rows) + "\n"))
+    return out
+
+
+def load(model_dir: str | Path) -> tuple[Surrogate, dict]:
+    """Rebuild a saved model (on the CPU, in eval mode) and return it with its JSON."""
+    folder = Path(model_dir)
+    for name in (META, STATE):
+        if not (folder / name).is_file():
+            raise ModelFileError(f"{folder / name}: missing; is {folder} a folder written by `deapull train`?")
+    try:
+        meta = json.loads((folder / META).read_text())
+    except json.JSONDecodeError as err:
+        raise ModelFileError(f"{folder / META}: not valid JSON ({err})") from err
+    if meta.get("format") != FORMAT:
+        raise ModelFileError(f"{folder / META}: format {meta.get('format')!r}, expected {FORMAT!r}")
+    hparams = {k: (math.inf if k == "v_contact_loss_V" and v is None else v)
+               for k, v in meta["hyper_parameters"].items()}
+    rng = {k: meta["input_range"][k] for k in ("low", "high", "tolerance")}
+    model = build(meta["kind"], Normalisation(**meta["normalisation"]), InputRange(**rng), hparams)
+    model.load_state_dict(torch.load(folder / STATE, map_location="cpu", weights_only=True))
+    return model.eval(), meta
+
+
+def _finite(value):
+    """JSON-safe copy: non-finite floats become None."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _atomic(path: Path, write) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
