@@ -124,7 +124,7 @@ def main(argv=None) -> int:
         head.append(f"CPU b={args.cpu_batch} [ms/rollout]")
     if cuda:
         head.append(f"CUDA b={args.batch} [ms/rollout]")
-    head += ["paper [ms]", f"target [ms]"]
+    head += ["paper [ms]", "target [ms]"]
     lines = [head]
     for row in rows:
         cells = [row["model"], f"{row.get('cpu_b1_native_ms', float('nan')):.2f}", f"{row['cpu_b1_torch_ms']:.1f}"]

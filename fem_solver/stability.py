@@ -17,9 +17,9 @@ the scene's steps. The small-step case compresses the ramp into a tenth of the t
 
 Pull-in is *detected*, not crashed into: the step that cannot be solved after the
 cut-backs ends the run with :class:`fem_solver.stepping.SolveFailed`, and the row records
-its voltage as ``instability_V``, beside the growth of the tip deflection
-(``tip_log_slope_end``: 2 for the small-strain V² law, larger as the actuator softens) and
-of the Newton iterations in the last accepted steps.
+its voltage as ``instability_V``, beside the growth of the tip deflection before it
+(``tip_log_slope_max``: 2 for the small-strain V² law, larger as the actuator softens) and
+the collapse of the accepted voltage increments (``dV_collapse``) as the cut-backs pile up.
 """
 from __future__ import annotations
 
@@ -135,8 +135,8 @@ def finish_row(row: dict) -> dict:
 
 CSV_COLUMNS = ("case", "description", "scene", "expected", "status", "converged", "as_expected", "steps",
                "newton_iterations", "max_newton_per_step", "cutbacks", "min_dt_s", "max_dt_s", "max_penetration_mm",
-               "max_force_residual_N", "travel_mm", "max_Fy_mN", "max_tip_deflection_mm", "last_V", "wall_s",
-               "reason", "fail_t_s", "fail_V", "instability_V", "tip_log_slope_end", "newton_growth", "dofs",
+               "max_force_residual_N", "travel_mm", "max_Fy_mN", "max_tip_deflection_mm", "last_V", "solve_s", "wall_s",
+               "reason", "fail_t_s", "fail_V", "instability_V", "tip_log_slope_max", "dV_collapse", "dofs",
                "outcome", "protocol", "overrides")
 MD_COLUMNS = (("case", "case", ""), ("converged", "converged", ""), ("as expected", "as_expected", ""),
               ("steps", "steps", "d"), ("Newton its", "newton_iterations", "d"),
@@ -161,8 +161,8 @@ def write_markdown(rows, path: Path, header: str) -> None:
         lines += ["Pull-in (electromechanical instability) detection:", ""]
         for r in pullin:
             lines.append(f"* `{r['case']}`: {'detected at V = ' + format(r['instability_V'], '.4g') + ' V' if math.isfinite(r['instability_V']) else 'not detected'}; "
-                         f"tip log-slope d ln|tip| / d ln V at the last steps {fmt(r.get('tip_log_slope_end'), '.3g')} "
-                         f"(2 = small-strain V^2 law), Newton growth {fmt(r.get('newton_growth'), '.3g')}x, "
+                         f"largest tip log-slope d ln|tip| / d ln V {fmt(r.get('tip_log_slope_max'), '.3g')} "
+                         f"(2 = small-strain V^2 law), voltage-increment collapse {fmt(r.get('dV_collapse'), '.3g')}x, "
                          f"max tip deflection {fmt(r.get('max_tip_deflection_mm'), '.3g')} mm.")
         lines.append("")
     unexpected = [r["case"] for r in rows if not r["as_expected"]]
