@@ -460,6 +460,10 @@ def add_errors(rows, out_dir: Path) -> list[dict]:
         front = pareto_front(out, key)
         for r in out:
             r[column] = r["case"] in front
+    nu = ref_row.get("poisson_ratio") if ref_row else None
+    same = pareto_front([r for r in out if r.get("poisson_ratio") == nu])
+    for r in out:
+        r["on_pareto_same_nu"] = r["case"] in same
     return out
 
 
@@ -468,14 +472,14 @@ def add_errors(rows, out_dir: Path) -> list[dict]:
 CSV_COLUMNS = ("case", "kind", "status", "elements", "cell", "order", "formulation", "poisson_ratio",
                "resolution", "dt_max_s", "dofs", "steps", "newton_iterations", "cutbacks", "solve_s", "wall_s",
                "mae_x_mm", "mae_Fy_mN", "mae_x_pct", "mae_Fy_pct", "error_pct", "travel_mm", "travel_err_mm",
-               "travel_err_pct", "is_reference", "is_default", "on_pareto", "on_pareto_travel", "reason",
+               "travel_err_pct", "is_reference", "is_default", "on_pareto", "on_pareto_travel", "on_pareto_same_nu", "reason",
                "protocol", "overrides")
 MD_COLUMNS = (("rung", "case", ""), ("elements", "elements", ""), ("ν", "poisson_ratio", "g"),
               ("dt_max s", "dt_max_s", ".3g"), ("dofs", "dofs", "d"), ("steps", "steps", "d"),
               ("Newton its", "newton_iterations", "d"), ("solve s", "solve_s", ".1f"), ("wall s", "wall_s", ".1f"),
               ("MAE x mm", "mae_x_mm", ".3g"), ("MAE Fy mN", "mae_Fy_mN", ".3g"), ("travel mm", "travel_mm", ".3f"),
               ("travel err %", "travel_err_pct", ".2f"), ("error %", "error_pct", ".2f"),
-              ("Pareto", "on_pareto", ""), ("status", "status", ""))
+              ("Pareto", "on_pareto", ""), ("Pareto, same ν", "on_pareto_same_nu", ""), ("status", "status", ""))
 
 
 def write_csv(rows, path: Path) -> None:
@@ -538,6 +542,8 @@ def default_verdict(rows) -> str:
     beaten = [r["case"] for r in rows if r["status"] == "ok" and not r.get("is_reference") and r is not d
               and r[TIME_KEY] <= d[TIME_KEY] and r.get("error_pct", math.inf) < d["error_pct"]]
     where = "on the Pareto front" if d.get("on_pareto") else f"not on the Pareto front (beaten by {', '.join(beaten)})"
+    where += (f"; among the rungs with the reference's ν = {d['poisson_ratio']:g} it is "
+              f"{'on' if d.get('on_pareto_same_nu') else 'not on'} the front")
     return (f"Shipped default ({d['case']}, {d['elements']}): error {d['error_pct']:.2f} %, coin-travel error "
             f"{fmt(d.get('travel_err_pct'), '.2f')} %, solve {d[TIME_KEY]:.1f} s (wall {d['wall_s']:.1f} s), "
             f"{d['dofs']} dofs — {where}.")

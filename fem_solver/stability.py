@@ -38,7 +38,7 @@ CONVERGED, INSTABILITY, REJECTED = "converged", "instability", "rejected"
 POISSON_RATIOS = (0.45, 0.49, 0.499, 0.4999, 0.5)
 PENALTY_FACTORS = (1e-2, 1e2, 1e4)
 PULL_IN_V = 1500.0
-GENT_LOCKING_I1 = 0.1          # I1 - 3 reached near the clamp at 400 V is a few 1e-2
+GENT_LOCKING_I1 = 0.1          # estimated I1 - 3 at 400 V: a few 1e-2 (~6 % free actuation strain)
 TINY_COMPRESSION, TINY_STEPS = 10.0, 1000   # dt-tiny: ramp over end/10 in 1000 steps (1 s: 1e-4 s steps)
 HUGE_DT_FRACTION, FORCED_DT_FRACTION = 0.5, 0.2
 
