@@ -81,6 +81,7 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         "coin_mass_kg": mass if mass is not None else "",
         "coin_mu_t": scene.coin.mu_t if scene.coin else "", "coin_mu_b": scene.coin.mu_b if scene.coin else "",
         "coin_density_kg_m3": scene.coin.density_kg_m3 if scene.coin else "",
+        "contact_slip_rate_reg_m_s": scene.contact.slip_rate_regularisation_m_s if scene.coin else "",
         "gravity_m_s2": scene.gravity_m_s2, "voltage_max_V": scene.load.voltage_max_V,
         "mesh_cells": compat.num_cells_global(mesh), "mesh_dofs": problem.num_dofs(),
         "mesh_cell_type": scene.mesh.cell, "mesh_order": scene.mesh.order, "mesh_level": scene.mesh.level,

@@ -25,8 +25,11 @@ from workflows.errors import InputError
 
 #: variables the surrogate needs, with the units the dataset must declare
 UNITS = {"t": "s", "x": "m", "u": "m/s", "V": "V", "dt": "s", "Fx": "N", "Fy": "N"}
-#: global attributes the surrogate needs (numbers)
+#: global attributes the surrogate needs (positive numbers)
 ATTRS = ("coin_mass_kg", "coin_mu_b", "gravity_m_s2")
+#: attributes that only the tip-contact model f-coulomb needs (read when present, NaN if not):
+#: the tip–coin friction coefficient μ_t (>= 0) and the FEM's friction slip-rate regularisation
+OPTIONAL_ATTRS = {"coin_mu_t": "mu_t", "contact_slip_rate_reg_m_s": "slip_rate_reg_m_s"}
 #: the paper's threshold: V^T is the voltage at which the coin reaches x = -1e-5 m
 THRESHOLD_DISPLACEMENT_M = -1e-5
 #: contact counts as lost once |Fx| + |Fy| falls below this fraction of its largest value
@@ -53,6 +56,11 @@ class SetupData:
         previous step (s), DEA force on the coin along x (N) and pressing force (N).
     coin_mass_kg, mu_b, gravity_m_s2 : float
         The coin's mass, ground friction coefficient and gravity (φ and g of the dynamics).
+    mu_t : float
+        The tip–coin friction coefficient (NaN when the file does not say).
+    slip_rate_reg_m_s : float
+        The FEM's friction regularisation ε_v (m/s): its tip–coin friction is
+        μ_t p s/√(|s|² + ε_v²) for a slip rate s (NaN when the file does not say).
     wall_time_s : float
         The FEM run's wall time (attribute ``wall_time_total_s``; NaN when absent).
     """
@@ -70,6 +78,8 @@ class SetupData:
     mu_b: float
     gravity_m_s2: float
     wall_time_s: float
+    mu_t: float = float("nan")
+    slip_rate_reg_m_s: float = float("nan")
 
     @property
     def n_steps(self) -> int:
@@ -163,9 +173,11 @@ def load_setup(path: str | Path) -> SetupData:
         bad = int(np.flatnonzero(arrays["dt"][1:] <= 0)[0]) + 1
         raise DatasetError(f"{path}: variable 'dt': non-positive time step {arrays['dt'][bad]:g} s at step {bad}")
     attrs = {name: _attribute(ds, path, name) for name in ATTRS}
+    optional = {field: _attribute(ds, path, name, allow_zero=True) if name in ds.attrs else float("nan")
+                for name, field in OPTIONAL_ATTRS.items()}
     return SetupData(name=path.stem, path=path, **arrays, coin_mass_kg=attrs["coin_mass_kg"],
                      mu_b=attrs["coin_mu_b"], gravity_m_s2=attrs["gravity_m_s2"],
-                     wall_time_s=float(ds.attrs.get("wall_time_total_s", float("nan"))))
+                     wall_time_s=float(ds.attrs.get("wall_time_total_s", float("nan"))), **optional)
 
 
 def _variable(ds: xr.Dataset, path: Path, name: str, units: str) -> np.ndarray:
@@ -184,16 +196,28 @@ def _variable(ds: xr.Dataset, path: Path, name: str, units: str) -> np.ndarray:
     return values
 
 
-def _attribute(ds: xr.Dataset, path: Path, name: str) -> float:
+def _attribute(ds: xr.Dataset, path: Path, name: str, allow_zero: bool = False) -> float:
     if name not in ds.attrs:
         raise DatasetError(f"{path}: attribute {name!r} is missing")
     try:
         value = float(ds.attrs[name])
     except (TypeError, ValueError):
         raise DatasetError(f"{path}: attribute {name!r} = {ds.attrs[name]!r} is not a number") from None
-    if not np.isfinite(value) or value <= 0:
-        raise DatasetError(f"{path}: attribute {name!r} = {value!r} must be a positive number")
+    if not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        allowed = "a non-negative" if allow_zero else "a positive"
+        raise DatasetError(f"{path}: attribute {name!r} = {value!r} must be {allowed} number")
     return value
+
+
+def require_tip_contact(data: SetupData) -> None:
+    """Refuse a dataset that lacks what the tip-contact model needs (μ_t, ε_v > 0)."""
+    if not data.mu_t >= 0:
+        raise DatasetError(f"{data.path}: attribute 'coin_mu_t' is missing: the f-coulomb model needs the "
+                           "tip-coin friction coefficient")
+    if not data.slip_rate_reg_m_s > 0:
+        raise DatasetError(f"{data.path}: attribute 'contact_slip_rate_reg_m_s' is missing or 0: the f-coulomb "
+                           "model needs the FEM's friction regularisation (datasets written before it was "
+                           "recorded: rerun the sweep)")
 
 
 def parse_setups(text: str) -> list[str]:
@@ -221,11 +245,15 @@ class Transitions:
     s, a, z, s_next : torch.Tensor
         (N, 2) each: state (x, u), action (V, Δt), forces (Fx, Fy), next state.
     phi : torch.Tensor
-        (N, 3): the setup's coin mass (kg), μ_b and threshold voltage V^T (V; NaN where
-        the dynamics does not need it) — the dynamics' parameters for that row.
+        (N, 4): the setup's coin mass (kg), μ_b, threshold voltage V^T (V; NaN where
+        the dynamics does not need it) and μ_t (NaN where unknown) — the dynamics'
+        parameters for that row.
     window : torch.Tensor
         (N, W, 4): the last W (s, a) pairs up to and including (s_t, a_t), padded at the
         start of each run by repeating its first pair (input of the LSTM baseline).
+    v_prev : torch.Tensor
+        (N,): the voltage at step t, before the increment (the DEA's state: memory of the
+        tip-contact model).
     """
 
     s: torch.Tensor
@@ -234,6 +262,7 @@ class Transitions:
     s_next: torch.Tensor
     phi: torch.Tensor
     window: torch.Tensor
+    v_prev: torch.Tensor
 
     def __len__(self) -> int:
         return self.s.shape[0]
@@ -263,10 +292,10 @@ def transitions(setups: list[SetupData], window: int, v_thresholds: dict[str, fl
         s, a, z = data.states(), data.actions(), data.forces()
         n = len(a)
         vt = (v_thresholds or {}).get(data.name, float("nan"))
-        phi = np.tile([data.coin_mass_kg, data.mu_b, vt], (n, 1))
+        phi = np.tile([data.coin_mass_kg, data.mu_b, vt, data.mu_t], (n, 1))
         sa = np.concatenate([s[:-1], a], axis=1)
         padded = np.concatenate([np.repeat(sa[:1], window - 1, axis=0), sa], axis=0)
         win = np.lib.stride_tricks.sliding_window_view(padded, (window, 4))[:, 0]
-        parts.append((s[:-1], a, z, s[1:], phi, win))
+        parts.append((s[:-1], a, z, s[1:], phi, win, data.V[:-1]))
     cols = [np.concatenate(c) for c in zip(*parts)]
     return Transitions(*(torch.as_tensor(c, dtype=dtype) for c in cols))

@@ -1,8 +1,8 @@
 """Error of a 1 s rollout against the FEM on a test setup (paper §VI-A, Table II).
 
 The model is rolled out recursively from the FEM's initial state under the FEM's actions;
-physics models simulate the test coin (its m_c and μ_b, and for the paper's law its V^T
-from the test run, as the paper does). Errors are over the rollout's T predicted steps.
+physics models simulate the test coin (its m_c and μ_b; for the paper's law its V^T from
+the test run, as the paper does; for the tip-contact model its μ_t). Errors are over the rollout's T predicted steps.
 """
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from surrogate.data import SetupData
-from surrogate.models import PhysicsModel, Surrogate
+from surrogate.data import SetupData, require_tip_contact
+from surrogate.models import PhysicsModel, Surrogate, TipContactModel
 from surrogate.rollout import rollout
 
 #: a rollout that leaves the FEM's travel by this factor (or turns non-finite) has diverged
@@ -57,10 +57,12 @@ class Evaluation:
 
 
 def use_setup(model: Surrogate, data: SetupData) -> None:
-    """Give a physics model the dynamics parameters φ (and V^T) of ``data``'s coin."""
+    """Give a physics model the dynamics parameters φ (and V^T, μ_t) of ``data``'s coin."""
     if isinstance(model, PhysicsModel):
-        vt = data.threshold_voltage() if model.law == "paper" else float("nan")
-        model.set_setup(data.coin_mass_kg, data.mu_b, vt)
+        model.set_setup(data.coin_mass_kg, data.mu_b, data.threshold_voltage())
+    elif isinstance(model, TipContactModel):
+        require_tip_contact(data)
+        model.set_setup(data.coin_mass_kg, data.mu_b, mu_t=data.mu_t)
 
 
 def evaluate(model: Surrogate, data: SetupData, engine: str = "auto", strict: bool = False) -> Evaluation:

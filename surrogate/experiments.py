@@ -36,7 +36,7 @@ PAPER = {"mae_x_m": {"f": 0.34e-4, "lstm": 3.86e-4, "nn": 9.86e-4},
          "mae_Fx_N": {"f": 3.68e-4}, "mae_Fy_N": {"f": 12.01e-4},
          "rollout_ms": {"f": 700.0, "nn": 300.0, "lstm": 1200.0}}
 PAPER_FEM_S = 130.0
-LABELS = {"f": "f (paper law)", "f-coulomb": "f (Coulomb)", "nn": "NN", "lstm": "LSTM"}
+LABELS = {"f": "f (paper law)", "f-coulomb": "f (tip contact)", "nn": "NN", "lstm": "LSTM"}
 COLUMNS = ("set", "train", "val", "test", "model", "mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N",
            "x_error_pct_travel", "max_abs_x_error_m", "final_x_error_m", "travel_m", "rollout_ms", "engine",
            "diverged", "best_epoch", "epochs_run", "train_time_s", "out_of_range_warnings")

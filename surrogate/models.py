@@ -3,18 +3,23 @@
 Every model takes and returns physical quantities (SI); the normalisation of the training
 data lives in the model as buffers, so a model is one self-contained ``nn.Module``:
 
-* :class:`PhysicsModel` — the paper's f(s, a; θ, φ) = d(m(s, a; θ), s, a; φ) (eqs. 1–2):
-  a material network m (eq. 7: MLP 4 → 3×128 ReLU → 2) estimates the DEA's forces
-  z = (Fx, Fy) and a dynamics law d moves the coin, with φ = (m_c, μ_b) as parameters.
-  ``law="paper"`` is eqs. 4–6 (threshold voltage V^T, contact loss, frictional decay,
-  motion only along the pull);
-  ``law="coulomb"`` is a smoothed Coulomb stick/slip step without V^T.
+* :class:`PhysicsModel` (kind ``f``) — the paper's f(s, a; θ, φ) = d(m(s, a; θ), s, a; φ)
+  (eqs. 1–2): a material network m (eq. 7: MLP 4 → 3×128 ReLU → 2) estimates the DEA's
+  forces z = (Fx, Fy) and the paper's law d (eqs. 4–6: threshold voltage V^T, contact
+  loss, frictional decay, motion only along the pull) moves the coin, φ = (m_c, μ_b).
+* :class:`TipContactModel` (kind ``f-coulomb``) — f = d∘m grounded in the FEM's contact
+  mechanics: m (MLP 1 → 3×128 ReLU → 2) maps the voltage to the DEA tip's stroke X(V) and
+  pressing force Fy(V); d moves the coin between two Coulomb contacts — the tip dragging it
+  with the FEM's rate-regularised friction μ_t, the ground holding it with exact stick/slip
+  μ_b — with φ = (m_c, μ_b, μ_t). No V^T is needed.
 * :class:`NNBaseline` — a black-box MLP (s, a) → s'.
 * :class:`LSTMBaseline` — a black-box LSTM over the last ``window`` (s, a) pairs → s'.
 
 All models share one step interface for rollouts, ``step(s, a, memory) -> (s', z, memory)``
-(``z`` is None for the black boxes, ``memory`` None for memoryless models), and one
-training interface, ``training_loss(batch)``.
+(``z`` is None for the black boxes, ``memory`` None for memoryless models; the LSTM keeps
+its window, the tip-contact model the voltage and stroke of the previous step), one
+training interface, ``training_loss(batch)``, and physics models one way to pick the coin,
+``set_setup(mass_kg, mu_b, v_threshold_V, mu_t)``.
 """
 from __future__ import annotations
 
@@ -23,7 +28,6 @@ from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from surrogate.data import Transitions
 
@@ -145,34 +149,6 @@ class Surrogate(nn.Module):
         raise NotImplementedError
 
 
-def friction_release(u_trial: torch.Tensor, u_cap: torch.Tensor, smoothing: float) -> torch.Tensor:
-    """Velocity after a friction impulse that may stop the coin but never reverses it.
-
-    ``sign(u*) max(|u*| - c, 0)``: the trial velocity u* = u + Δt F/m_c loses at most
-    c = Δt F_μ/m_c. With ``smoothing`` τ > 0 (m/s) it is the smooth odd function
-    τ [softplus((u* - c)/τ) - softplus((-u* - c)/τ)], which differs from the exact clamp
-    by at most τ ln 2, is exactly 0 at u* = 0, and has useful gradients across stick/slip.
-    """
-    if smoothing > 0:
-        return smoothing * (F.softplus((u_trial - u_cap) / smoothing) - F.softplus((-u_trial - u_cap) / smoothing))
-    return torch.sign(u_trial) * torch.relu(u_trial.abs() - u_cap)
-
-
-def coulomb_dynamics(z, s, a, mass_kg, mu_b, gravity, smoothing: float) -> torch.Tensor:
-    """d, Coulomb variant: one backward-Euler step of the coin with ground stick/slip.
-
-    m_c (u' - u) = Δt (Fx - f_b),  f_b ∈ μ_b N [-1, 1],  N = max(m_c g + Fy, 0),
-    x' = x + Δt u'. The friction f_b is the force that stops the coin within the step,
-    clamped to the Coulomb cone (smoothed by :func:`friction_release`); no threshold
-    voltage is needed: the coin sticks exactly while |m_c u + Δt Fx| ≤ Δt μ_b N.
-    """
-    x, u, dt = s[..., 0], s[..., 1], a[..., 1]
-    fx, fy = z[..., 0], z[..., 1]
-    normal = torch.clamp(mass_kg * gravity + fy, min=0.0)
-    u_next = friction_release(u + dt * fx / mass_kg, dt * mu_b * normal / mass_kg, smoothing)
-    return torch.stack([x + dt * u_next, u_next], dim=-1)
-
-
 def paper_dynamics(z, s, a, mass_kg, mu_b, gravity, v_threshold, v_contact_loss: float) -> torch.Tensor:
     """d, the paper's law (eqs. 4–6): m_c A = Fx - F_μ along the pull (-x), with a
     voltage-ramped friction.
@@ -196,46 +172,43 @@ def paper_dynamics(z, s, a, mass_kg, mu_b, gravity, v_threshold, v_contact_loss:
 
 
 class PhysicsModel(Surrogate):
-    """f = d∘m: material network m (θ) and coin dynamics d (φ = (m_c, μ_b)).
+    """The paper's f = d∘m: material network m (θ) and the paper's law d (φ = (m_c, μ_b)).
 
     Parameters
     ----------
     norm, input_range
         See :class:`Surrogate`.
-    law : {"paper", "coulomb"}
-        Dynamics d: :func:`paper_dynamics` (kind ``f``) or :func:`coulomb_dynamics`
-        (kind ``f-coulomb``).
+    law : {"paper"}
+        Dynamics d: :func:`paper_dynamics` (kind ``f``).
     hidden, layers : int
         Material network width and depth (paper: 128, 3).
     gravity_m_s2 : float
     v_contact_loss_V : float
-        Paper law: voltage from which the DEA has lost the coin (inf: never).
-    smoothing_m_s : float
-        Coulomb law: velocity scale τ of the smoothed stick/slip (0: exact clamp).
+        Voltage from which the DEA has lost the coin (inf: never).
     mass_kg, mu_b, v_threshold_V : float
         The setup simulated by :meth:`step` (change it with :meth:`set_setup`).
     """
 
-    def __init__(self, norm: Normalisation, input_range: InputRange, law: str = "coulomb", hidden: int = 128,
+    kind = "f"
+
+    def __init__(self, norm: Normalisation, input_range: InputRange, law: str = "paper", hidden: int = 128,
                  layers: int = 3, gravity_m_s2: float = 9.8, v_contact_loss_V: float = math.inf,
-                 smoothing_m_s: float = 1e-6, mass_kg: float = 1.36e-3, mu_b: float = 0.2,
-                 v_threshold_V: float = math.nan):
-        if law not in ("paper", "coulomb"):
-            raise ValueError(f"law must be 'paper' or 'coulomb', not {law!r}")
+                 mass_kg: float = 1.36e-3, mu_b: float = 0.2, v_threshold_V: float = math.nan):
+        if law != "paper":
+            raise ValueError(f"law must be 'paper', not {law!r} (the Coulomb variant is TipContactModel)")
         hparams = {"law": law, "hidden": hidden, "layers": layers, "gravity_m_s2": gravity_m_s2,
-                   "v_contact_loss_V": v_contact_loss_V, "smoothing_m_s": smoothing_m_s}
+                   "v_contact_loss_V": v_contact_loss_V}
         super().__init__(norm, input_range, hparams)
-        self.kind = "f" if law == "paper" else "f-coulomb"
         self.law = law
         self.material = mlp(4, hidden, layers, 2)
         self.mass_kg = nn.Parameter(torch.tensor(mass_kg), requires_grad=False)
         self.mu_b = nn.Parameter(torch.tensor(mu_b), requires_grad=False)
         self.register_buffer("v_threshold_V", torch.tensor(v_threshold_V))
-        self.gravity_m_s2, self.v_contact_loss_V, self.smoothing_m_s = gravity_m_s2, v_contact_loss_V, smoothing_m_s
+        self.gravity_m_s2, self.v_contact_loss_V = gravity_m_s2, v_contact_loss_V
 
-    def set_setup(self, mass_kg: float, mu_b: float, v_threshold_V: float = math.nan) -> None:
-        """Set φ = (m_c, μ_b) and V^T to those of the setup to simulate."""
-        if self.law == "paper" and not v_threshold_V > 0:
+    def set_setup(self, mass_kg: float, mu_b: float, v_threshold_V: float = math.nan, mu_t: float = math.nan) -> None:
+        """Set φ = (m_c, μ_b) and V^T to those of the setup to simulate (μ_t is not used)."""
+        if not v_threshold_V > 0:
             raise ValueError(f"the paper's law needs a positive threshold voltage V^T, got {v_threshold_V}")
         with torch.no_grad():
             self.mass_kg.fill_(mass_kg)
@@ -248,13 +221,11 @@ class PhysicsModel(Surrogate):
 
     def dynamics(self, z, s, a, mass_kg, mu_b, v_threshold) -> torch.Tensor:
         """d: the next state from forces, state, action and φ (broadcast against the batch)."""
-        if self.law == "paper":
-            return paper_dynamics(z, s, a, mass_kg, mu_b, self.gravity_m_s2, v_threshold, self.v_contact_loss_V)
-        return coulomb_dynamics(z, s, a, mass_kg, mu_b, self.gravity_m_s2, self.smoothing_m_s)
+        return paper_dynamics(z, s, a, mass_kg, mu_b, self.gravity_m_s2, v_threshold, self.v_contact_loss_V)
 
     def forward(self, s: torch.Tensor, a: torch.Tensor, phi: torch.Tensor | None = None):
-        """f(s, a; θ, φ) → (s', z). ``phi`` (..., 3) = (m_c, μ_b, V^T) per row overrides the
-        model's own setup (used in training, where rows come from several setups)."""
+        """f(s, a; θ, φ) → (s', z). ``phi`` (..., 4) = (m_c, μ_b, V^T, μ_t) per row overrides
+        the model's own setup (used in training, where rows come from several setups)."""
         z = self.forces(s, a)
         if phi is None:
             mass, mu_b, vt = self.mass_kg, self.mu_b, self.v_threshold_V
@@ -269,6 +240,178 @@ class PhysicsModel(Surrogate):
     def training_loss(self, batch: Transitions) -> torch.Tensor:
         """Eq. 3: mean squared error of z and of s', each normalised by its scale."""
         s_next, z = self(batch.s, batch.a, batch.phi)
+        return (((z - batch.z) / self.z_std) ** 2).mean() + (((s_next - batch.s_next) / self.s_std) ** 2).mean()
+
+
+def regularised_slip(v: torch.Tensor, eps: float) -> torch.Tensor:
+    """The FEM's rate-regularised Coulomb factor s/√(s² + ε²) ∈ (-1, 1) of a slip rate s."""
+    return v / torch.sqrt(v * v + eps * eps)
+
+
+def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps: float, iterations: int = 40):
+    """d of the tip-contact model: one backward-Euler step of the coin between two contacts.
+
+    The coin (mass m_c, velocity u) is dragged by the DEA tip moving at w with the FEM's
+    rate-regularised friction T = μ_t Fy (w - u')/√((w - u')² + ε²) and held by the ground
+    with exact Coulomb stick/slip, |B| ≤ μ_b N:
+
+        m_c (u' - u) / Δt = T(u') - B,   B ∈ μ_b N Sgn(u').
+
+    The right side decreases in u', so the step has one solution: the coin sticks (u' = 0)
+    when the tip's pull at u' = 0 plus the coin's momentum stays inside the ground's cone;
+    otherwise the sign of u' is known and a bracketed Newton solve finds it. The solve runs
+    without gradients, then one Newton correction with them gives the gradients of the
+    exact root (implicit differentiation) with respect to every input.
+
+    Parameters
+    ----------
+    u, w : torch.Tensor
+        Coin velocity before the step and tip velocity over it (m/s).
+    cap_t, cap_b : torch.Tensor
+        μ_t Fy and μ_b N (N), non-negative.
+    mass_kg, dt : torch.Tensor or float
+    eps : float
+        Slip-rate regularisation ε (m/s), > 0.
+    iterations : int
+        Most Newton/bisection iterations (they stop once no row changes; a handful suffice).
+
+    Returns
+    -------
+    (u_next, T) : tuple of torch.Tensor
+        The coin velocity after the step and the tip's force on the coin along x (N).
+    """
+    c = mass_kg / dt
+    tip_at_rest_coin = cap_t * regularised_slip(w, eps)
+    ground_reaction = tip_at_rest_coin + c * u
+    stuck = ground_reaction.abs() <= cap_b
+    sign = torch.where(ground_reaction > 0, torch.ones_like(u), -torch.ones_like(u))
+
+    def residual(v):
+        return c * (v - u) - cap_t * regularised_slip(w - v, eps) + sign * cap_b
+
+    def slope(v):
+        return c + cap_t * eps * eps / ((w - v) ** 2 + eps * eps) ** 1.5
+
+    with torch.no_grad():
+        reach = (cap_t + cap_b) / c
+        zero = torch.zeros_like(ground_reaction)
+        lo = torch.where(sign > 0, zero, torch.minimum(u - reach, zero))
+        hi = torch.where(sign > 0, torch.maximum(u + reach, zero), zero)
+        v = torch.minimum(torch.maximum(w + zero, lo), hi)
+        for _ in range(iterations):
+            r = residual(v)
+            lo, hi = torch.where(r < 0, v, lo), torch.where(r >= 0, v, hi)
+            newton = v - r / slope(v)
+            v, previous = torch.where((newton <= lo) | (newton >= hi), 0.5 * (lo + hi), newton), v
+            if bool(torch.all((v - previous).abs() <= 1e-13 * (v.abs() + eps))):
+                break
+    v = v - residual(v) / slope(v).detach()
+    u_next = torch.where(stuck, torch.zeros_like(v), v)
+    force = torch.where(stuck, tip_at_rest_coin + 0 * v, cap_t * regularised_slip(w - u_next, eps))
+    return u_next, force
+
+
+class TipContactModel(Surrogate):
+    """f = d∘m grounded in the FEM's contact mechanics (kind ``f-coulomb``).
+
+    m (θ): an MLP 1 → ``layers``×``hidden`` ReLU → 2 of the voltage alone gives the DEA's
+    material response at its tip: the stroke X(V) of the tip's contact point along x
+    (X(0) = 0) and the pressing force Fy(V). In the FEM both depend on the voltage and hardly
+    on the coin (Fy at equal V agrees across the eight setups to 0.1 %); feeding m the
+    coin's state would tie it to the training coin's path instead.
+
+    d (φ = (m_c, μ_b, μ_t)): the tip moves at w = (X(V_t+1) - X(V_t))/Δt and drags the coin
+    with the FEM's rate-regularised Coulomb friction (ε_v from the dataset); the ground holds
+    it with exact Coulomb stick/slip (:func:`tip_coin_step`). The onset of sliding, the lag
+    of the coin behind the tip and the effect of a heavier or rougher coin all come out of d;
+    z = (Fx, Fy) with Fx the friction the tip exerts.
+
+    The rollout memory is (V, X) of the previous step; a rollout starts with the DEA at 0 V.
+
+    Parameters
+    ----------
+    norm, input_range
+        See :class:`Surrogate`.
+    hidden, layers : int
+    gravity_m_s2 : float
+    slip_rate_reg_m_s : float
+        ε_v of the tip–coin friction (the FEM scene's ``contact.slip_rate_regularisation_m_s``).
+    iterations : int
+        Iterations of the step's root solve.
+    mass_kg, mu_b, mu_t : float
+        The setup simulated by :meth:`step` (change it with :meth:`set_setup`).
+    """
+
+    kind = "f-coulomb"
+
+    def __init__(self, norm: Normalisation, input_range: InputRange, hidden: int = 128, layers: int = 3,
+                 gravity_m_s2: float = 9.8, slip_rate_reg_m_s: float = 1e-4, iterations: int = 40,
+                 mass_kg: float = 1.36e-3, mu_b: float = 0.2, mu_t: float = 0.5):
+        if not slip_rate_reg_m_s > 0:
+            raise ValueError(f"slip_rate_reg_m_s must be positive, got {slip_rate_reg_m_s}")
+        hparams = {"hidden": hidden, "layers": layers, "gravity_m_s2": gravity_m_s2,
+                   "slip_rate_reg_m_s": slip_rate_reg_m_s, "iterations": iterations}
+        super().__init__(norm, input_range, hparams)
+        self.material = mlp(1, hidden, layers, 2)
+        self.mass_kg = nn.Parameter(torch.tensor(mass_kg), requires_grad=False)
+        self.mu_b = nn.Parameter(torch.tensor(mu_b), requires_grad=False)
+        self.mu_t = nn.Parameter(torch.tensor(mu_t), requires_grad=False)
+        self.gravity_m_s2, self.slip_rate_reg_m_s, self.iterations = gravity_m_s2, slip_rate_reg_m_s, iterations
+
+    def set_setup(self, mass_kg: float, mu_b: float, v_threshold_V: float = math.nan, mu_t: float = math.nan) -> None:
+        """Set φ = (m_c, μ_b, μ_t) to those of the setup to simulate (V^T is not used)."""
+        if not mu_t >= 0:
+            raise ValueError(f"the tip-contact model needs the tip-coin friction μ_t >= 0, got {mu_t}")
+        with torch.no_grad():
+            self.mass_kg.fill_(mass_kg)
+            self.mu_b.fill_(mu_b)
+            self.mu_t.fill_(mu_t)
+
+    def material_response(self, V: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """m: the tip's stroke X(V) (m, X(0) = 0) and pressing force Fy(V) (N)."""
+        scaled = torch.stack([V, torch.zeros_like(V)], dim=-1).unsqueeze(-1)
+        out = self.material((scaled - self.in_mean[2]) / self.in_std[2])
+        stroke = self.s_std[0] * (out[..., 0, 0] - out[..., 1, 0])
+        return stroke, self.z_mean[1] + self.z_std[1] * out[..., 0, 1]
+
+    def init_memory(self, s0, a0):
+        """(V, X) before the first step: the DEA at rest, 0 V."""
+        return torch.zeros(s0.shape[:-1] + (2,), dtype=s0.dtype, device=s0.device)
+
+    def dynamics(self, s, a, stroke_prev, stroke, fy, mass_kg, mu_b, mu_t):
+        """d: the next state and z = (Fx, Fy), in float64, from the tip's stroke over the step."""
+        s, a = s.double(), a.double()
+        dt = a[..., 1]
+        fy = fy.double()
+        normal = torch.clamp(mass_kg * self.gravity_m_s2 + fy, min=0.0)
+        w = (stroke.double() - stroke_prev.double()) / dt
+        u_next, fx = tip_coin_step(s[..., 1], w, mu_t * torch.clamp(fy, min=0.0), mu_b * normal, mass_kg, dt,
+                                   self.slip_rate_reg_m_s, self.iterations)
+        return torch.stack([s[..., 0] + dt * u_next, u_next], dim=-1), torch.stack([fx, fy], dim=-1)
+
+    def forward(self, s, a, v_prev, phi=None):
+        """f(s, a; θ, φ) → (s', z) from the voltage ``v_prev`` before the step; ``phi``
+        (..., 4) = (m_c, μ_b, V^T, μ_t) per row overrides the model's own setup."""
+        stroke, fy = self.material_response(torch.stack([v_prev, a[..., 0]], dim=-1))
+        if phi is None:
+            mass, mu_b, mu_t = self.mass_kg.double(), self.mu_b.double(), self.mu_t.double()
+        else:
+            phi = phi.double()
+            mass, mu_b, mu_t = phi[..., 0], phi[..., 1], phi[..., 3]
+        s_next, z = self.dynamics(s, a, stroke[..., 0], stroke[..., 1], fy[..., 1], mass, mu_b, mu_t)
+        return s_next.to(s.dtype), z.to(s.dtype)
+
+    def step(self, s, a, memory=None):
+        if memory is None:
+            memory = self.init_memory(s, a)
+        stroke, fy = self.material_response(a[..., 0])
+        mass, mu_b, mu_t = self.mass_kg.double(), self.mu_b.double(), self.mu_t.double()
+        s_next, z = self.dynamics(s, a, memory[..., 1], stroke, fy, mass, mu_b, mu_t)
+        return s_next.to(s.dtype), z.to(s.dtype), torch.stack([a[..., 0], stroke.to(s.dtype)], dim=-1)
+
+    def training_loss(self, batch: Transitions) -> torch.Tensor:
+        """Eq. 3: mean squared error of z and of s', each normalised by its scale."""
+        s_next, z = self(batch.s, batch.a, batch.v_prev, batch.phi)
         return (((z - batch.z) / self.z_std) ** 2).mean() + (((s_next - batch.s_next) / self.s_std) ** 2).mean()
 
 
@@ -327,9 +470,10 @@ class LSTMBaseline(Surrogate):
 def build(kind: str, norm: Normalisation, input_range: InputRange, hparams: dict | None = None) -> Surrogate:
     """A fresh model of ``kind`` (one of :data:`KINDS`) with hyper-parameters ``hparams``."""
     hparams = dict(hparams or {})
-    if kind in ("f", "f-coulomb"):
-        hparams.setdefault("law", "paper" if kind == "f" else "coulomb")
+    if kind == "f":
         return PhysicsModel(norm, input_range, **hparams)
+    if kind == "f-coulomb":
+        return TipContactModel(norm, input_range, **hparams)
     if kind == "nn":
         return NNBaseline(norm, input_range, **hparams)
     if kind == "lstm":

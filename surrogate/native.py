@@ -1,6 +1,6 @@
 """The native rollout engine: batch-1 CPU rollouts in compiled C, called through ctypes.
 
-A 1 s rollout is ~1000 sequential steps of a 4 → 3×128 → 2 network; in torch each step
+A 1 s rollout is ~1000 sequential steps of a 3×128 hidden-layer network; in torch each step
 costs tens of microseconds of per-operation overhead, far above its ~35k multiply-adds.
 ``native_rollout.c`` runs the same arithmetic in one C loop. It is compiled on first use
 with the system C compiler (the one FFCx already needs for the FEM stage) into
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from surrogate.models import LSTMBaseline, NNBaseline, PhysicsModel, Surrogate
+from surrogate.models import LSTMBaseline, NNBaseline, PhysicsModel, Surrogate, TipContactModel
 
 log = logging.getLogger(__name__)
 
@@ -65,8 +65,9 @@ def library() -> ctypes.CDLL | None:
             log.warning("compiling %s failed (%s): rollouts use the slower torch engine", SOURCE.name, detail)
             return None
     lib = ctypes.CDLL(str(target))
-    lib.deapull_rollout_physics.argtypes = [ctypes.c_int, ctypes.c_int, _INT_P, _FLOAT_P, _DOUBLE_P, _DOUBLE_P,
-                                            ctypes.c_int, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P, _DOUBLE_P]
+    for kernel in (lib.deapull_rollout_physics, lib.deapull_rollout_tip):
+        kernel.argtypes = [ctypes.c_int, _INT_P, _FLOAT_P, _DOUBLE_P, _DOUBLE_P, ctypes.c_int, _DOUBLE_P,
+                           _DOUBLE_P, _DOUBLE_P, _DOUBLE_P]
     lib.deapull_rollout_nn.argtypes = [ctypes.c_int, _INT_P, _FLOAT_P, _DOUBLE_P, ctypes.c_int, _DOUBLE_P,
                                        _DOUBLE_P, _DOUBLE_P]
     lib.deapull_rollout_lstm.argtypes = [ctypes.c_int, ctypes.c_int, _FLOAT_P, _DOUBLE_P, ctypes.c_int, _DOUBLE_P,
@@ -90,7 +91,7 @@ def _compile(compiler: str, target: Path) -> None:
 
 def supports(model: Surrogate) -> bool:
     """True when ``model`` has a native kernel and the kernels are available."""
-    return isinstance(model, (PhysicsModel, NNBaseline, LSTMBaseline)) and library() is not None
+    return isinstance(model, (PhysicsModel, TipContactModel, NNBaseline, LSTMBaseline)) and library() is not None
 
 
 def _ptr(array: np.ndarray, kind):
@@ -130,12 +131,21 @@ def rollout(model: Surrogate, s0: np.ndarray, actions: np.ndarray) -> tuple[np.n
         sizes, params, n_layers = _mlp_params(model.material)
         norm = _buffers(model, "in_mean", "in_std", "z_mean", "z_std")
         phys = np.array([model.mass_kg.item(), model.mu_b.item(), model.gravity_m_s2, model.v_threshold_V.item(),
-                         model.v_contact_loss_V, model.smoothing_m_s])
+                         model.v_contact_loss_V])
         forces = np.empty((n, 2))
-        rc = lib.deapull_rollout_physics(0 if model.law == "paper" else 1, n_layers, _ptr(sizes, _INT_P),
-                                         _ptr(params, _FLOAT_P), _ptr(norm, _DOUBLE_P), _ptr(phys, _DOUBLE_P), n,
-                                         _ptr(s0, _DOUBLE_P), _ptr(actions, _DOUBLE_P), _ptr(states, _DOUBLE_P),
-                                         _ptr(forces, _DOUBLE_P))
+        rc = lib.deapull_rollout_physics(n_layers, _ptr(sizes, _INT_P), _ptr(params, _FLOAT_P), _ptr(norm, _DOUBLE_P),
+                                         _ptr(phys, _DOUBLE_P), n, _ptr(s0, _DOUBLE_P), _ptr(actions, _DOUBLE_P),
+                                         _ptr(states, _DOUBLE_P), _ptr(forces, _DOUBLE_P))
+    elif isinstance(model, TipContactModel):
+        sizes, params, n_layers = _mlp_params(model.material)
+        norm = np.array([model.in_mean[2].item(), model.in_std[2].item(), model.s_std[0].item(),
+                         model.z_mean[1].item(), model.z_std[1].item()])
+        phys = np.array([model.mass_kg.item(), model.mu_b.item(), model.mu_t.item(), model.gravity_m_s2,
+                         model.slip_rate_reg_m_s, model.iterations], dtype=np.float64)
+        forces = np.empty((n, 2))
+        rc = lib.deapull_rollout_tip(n_layers, _ptr(sizes, _INT_P), _ptr(params, _FLOAT_P), _ptr(norm, _DOUBLE_P),
+                                     _ptr(phys, _DOUBLE_P), n, _ptr(s0, _DOUBLE_P), _ptr(actions, _DOUBLE_P),
+                                     _ptr(states, _DOUBLE_P), _ptr(forces, _DOUBLE_P))
     elif isinstance(model, NNBaseline):
         sizes, params, n_layers = _mlp_params(model.net)
         norm = _buffers(model, "in_mean", "in_std", "ds_std")

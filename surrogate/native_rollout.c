@@ -81,25 +81,12 @@ static void normalised_inputs(const double *norm, double x, double u, double V, 
         in[k] = (float)((raw[k] - norm[k]) / norm[4 + k]);
 }
 
-/* torch.nn.functional.softplus with beta 1, threshold 20 */
-static double softplus(double y) { return y > 20.0 ? y : log1p(exp(y)); }
-
-static double friction_release(double u_trial, double u_cap, double smoothing)
-{
-    if (smoothing > 0.0)
-        return smoothing * (softplus((u_trial - u_cap) / smoothing) - softplus((-u_trial - u_cap) / smoothing));
-    double r = fabs(u_trial) - u_cap;
-    if (r <= 0.0)
-        return 0.0;
-    return u_trial > 0.0 ? r : -r;
-}
-
 /*
- * f = d(m): law 0 = the paper's (eqs. 4-6), law 1 = Coulomb stick/slip.
+ * f = d(m) with the paper's law (eqs. 4-6).
  * norm = in_mean[4], in_std[4], z_mean[2], z_std[2];
- * phys = mass_kg, mu_b, gravity, v_threshold, v_contact_loss, smoothing.
+ * phys = mass_kg, mu_b, gravity, v_threshold, v_contact_loss.
  */
-int deapull_rollout_physics(int law, int n_layers, const int *sizes, const float *params, const double *norm,
+int deapull_rollout_physics(int n_layers, const int *sizes, const float *params, const double *norm,
                             const double *phys, int n_steps, const double *s0, const double *actions,
                             double *states, double *forces)
 {
@@ -107,7 +94,7 @@ int deapull_rollout_physics(int law, int n_layers, const int *sizes, const float
     float *scratch = malloc(sizeof(float) * 2 * w);
     if (!scratch)
         return -1;
-    const double mass = phys[0], mu_b = phys[1], g = phys[2], vt = phys[3], vloss = phys[4], smooth = phys[5];
+    const double mass = phys[0], mu_b = phys[1], g = phys[2], vt = phys[3], vloss = phys[4];
     double x = s0[0], u = s0[1];
     float in[4], zn[2];
     states[0] = x;
@@ -120,17 +107,103 @@ int deapull_rollout_physics(int law, int n_layers, const int *sizes, const float
         double fy = norm[9] + norm[11] * (double)zn[1];
         forces[2 * t] = fx;
         forces[2 * t + 1] = fy;
-        if (law == 0) {
-            int contact = V < vloss;
-            double pull = (contact && V > 0.0) ? fmax(-fx, 0.0) : 0.0;
-            double ramp = V > 0.0 ? fmin(V / vt, 1.0) : 1.0;
-            double friction = mu_b * ramp * fmax((contact ? fy : 0.0) + mass * g, 0.0);
-            u = -fmax(-u + dt * (pull - friction) / mass, 0.0);
-        } else {
-            double friction = mu_b * fmax(mass * g + fy, 0.0);
-            u = friction_release(u + dt * fx / mass, dt * friction / mass, smooth);
-        }
+        int contact = V < vloss;
+        double pull = (contact && V > 0.0) ? fmax(-fx, 0.0) : 0.0;
+        double ramp = V > 0.0 ? fmin(V / vt, 1.0) : 1.0;
+        double friction = mu_b * ramp * fmax((contact ? fy : 0.0) + mass * g, 0.0);
+        u = -fmax(-u + dt * (pull - friction) / mass, 0.0);
         x = x + dt * u;
+        states[2 * t + 2] = x;
+        states[2 * t + 3] = u;
+    }
+    free(scratch);
+    return 0;
+}
+
+/* The FEM's rate-regularised Coulomb factor s / sqrt(s^2 + eps^2). */
+static double regularised_slip(double v, double eps) { return v / sqrt(v * v + eps * eps); }
+
+/*
+ * One backward-Euler step of the coin dragged by the tip (velocity w, regularised friction
+ * cap_t) and held by the ground (exact Coulomb, cap_b); c = m_c / dt. Same arithmetic as
+ * surrogate.models.tip_coin_step (bracketed Newton, then one Newton correction).
+ */
+static double tip_coin_step(double u, double w, double cap_t, double cap_b, double c, double eps, int iterations,
+                            double *force)
+{
+    const double at_rest = cap_t * regularised_slip(w, eps);
+    const double reaction = at_rest + c * u;
+    if (fabs(reaction) <= cap_b) {
+        *force = at_rest;
+        return 0.0;
+    }
+    const double sign = reaction > 0.0 ? 1.0 : -1.0, reach = (cap_t + cap_b) / c;
+    double lo = sign > 0.0 ? 0.0 : fmin(u - reach, 0.0);
+    double hi = sign > 0.0 ? fmax(u + reach, 0.0) : 0.0;
+    double v = fmin(fmax(w, lo), hi), r, slope, d;
+    for (int k = 0; k <= iterations; k++) {
+        d = w - v;
+        r = c * (v - u) - cap_t * regularised_slip(d, eps) + sign * cap_b;
+        slope = c + cap_t * eps * eps / pow(d * d + eps * eps, 1.5);
+        if (k == iterations)
+            break;
+        if (r < 0.0)
+            lo = v;
+        else
+            hi = v;
+        double next = v - r / slope;
+        if (next <= lo || next >= hi)
+            next = 0.5 * (lo + hi);
+        const double change = fabs(next - v);
+        v = next;
+        if (change <= 1e-13 * (fabs(v) + eps)) {
+            d = w - v;
+            r = c * (v - u) - cap_t * regularised_slip(d, eps) + sign * cap_b;
+            slope = c + cap_t * eps * eps / pow(d * d + eps * eps, 1.5);
+            break;
+        }
+    }
+    v -= r / slope;
+    *force = cap_t * regularised_slip(w - v, eps);
+    return v;
+}
+
+/*
+ * Tip-contact f = d(m): m maps the voltage to the tip's stroke X and pressing force Fy.
+ * norm = v_mean, v_std, x_scale, fy_mean, fy_std;
+ * phys = mass_kg, mu_b, mu_t, gravity, slip-rate regularisation, iterations.
+ * The DEA starts at 0 V (X = 0).
+ */
+int deapull_rollout_tip(int n_layers, const int *sizes, const float *params, const double *norm, const double *phys,
+                        int n_steps, const double *s0, const double *actions, double *states, double *forces)
+{
+    int w = max_width(n_layers, sizes);
+    float *scratch = malloc(sizeof(float) * 2 * w);
+    if (!scratch)
+        return -1;
+    const double mass = phys[0], mu_b = phys[1], mu_t = phys[2], g = phys[3], eps = phys[4];
+    const int iterations = (int)phys[5];
+    float in, out[2];
+    in = (float)((0.0 - norm[0]) / norm[1]);
+    mlp(n_layers, sizes, params, &in, out, scratch, scratch + w);
+    const float rest = out[0];
+    double x = s0[0], u = s0[1], stroke_prev = 0.0;
+    states[0] = x;
+    states[1] = u;
+    for (int t = 0; t < n_steps; t++) {
+        const double V = actions[2 * t], dt = actions[2 * t + 1];
+        in = (float)((V - norm[0]) / norm[1]);
+        mlp(n_layers, sizes, params, &in, out, scratch, scratch + w);
+        const double stroke = (double)((float)norm[2] * (out[0] - rest));
+        const double fy = (double)((float)norm[3] + (float)norm[4] * out[1]);
+        const double normal = fmax(mass * g + fy, 0.0);
+        double fx;
+        u = tip_coin_step(u, (stroke - stroke_prev) / dt, mu_t * fmax(fy, 0.0), mu_b * normal, mass / dt, eps,
+                          iterations, &fx);
+        x = x + dt * u;
+        stroke_prev = stroke;
+        forces[2 * t] = fx;
+        forces[2 * t + 1] = fy;
         states[2 * t + 2] = x;
         states[2 * t + 3] = u;
     }

@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, field
 import torch
 from tqdm import tqdm
 
-from surrogate.data import SetupData, transitions
+from surrogate.data import SetupData, require_tip_contact, transitions
 from surrogate.models import KINDS, InputRange, Normalisation, Surrogate, build
 from workflows.errors import InputError
 
@@ -50,8 +50,6 @@ class TrainConfig:
         also the LSTM's state size.
     window : int
         LSTM history length (paper: 8).
-    smoothing_m_s : float
-        Coulomb law's stick/slip smoothing τ (m/s).
     range_tolerance : float
         Relative margin of the training input range before a warning.
     """
@@ -66,7 +64,6 @@ class TrainConfig:
     hidden: int = 128
     layers: int = 3
     window: int = 8
-    smoothing_m_s: float = 1e-6
     range_tolerance: float = 0.05
 
     def __post_init__(self):
@@ -79,14 +76,20 @@ class TrainConfig:
             raise InputError(f"learning rate {self.lr} must be positive")
         resolve_device(self.device)
 
-    def model_hparams(self, contact_loss_V: float, gravity_m_s2: float) -> dict:
+    def model_hparams(self, train_sets: list[SetupData]) -> dict:
         """The hyper-parameters :func:`surrogate.models.build` takes for this kind."""
         if self.kind == "lstm":
             return {"hidden": self.hidden, "window": self.window}
         if self.kind == "nn":
             return {"hidden": self.hidden, "layers": self.layers}
-        return {"hidden": self.hidden, "layers": self.layers, "gravity_m_s2": gravity_m_s2,
-                "v_contact_loss_V": contact_loss_V, "smoothing_m_s": self.smoothing_m_s}
+        common = {"hidden": self.hidden, "layers": self.layers, "gravity_m_s2": train_sets[0].gravity_m_s2}
+        if self.kind == "f":
+            return {**common, "v_contact_loss_V": min(d.contact_loss_voltage() for d in train_sets)}
+        eps = {d.slip_rate_reg_m_s for d in train_sets}
+        if len(eps) != 1:
+            raise InputError(f"training setups were made with different friction regularisations {sorted(eps)} m/s; "
+                             "f-coulomb needs one")
+        return {**common, "slip_rate_reg_m_s": eps.pop()}
 
 
 def resolve_device(name: str) -> torch.device:
@@ -133,7 +136,7 @@ class TrainResult:
 def setup_record(data: SetupData, role: str, needs_threshold: bool) -> dict:
     """A setup's identity and dynamics parameters, as saved with a model."""
     return {"role": role, "file": str(data.path), "steps": data.n_steps, "coin_mass_kg": data.coin_mass_kg,
-            "mu_b": data.mu_b, "gravity_m_s2": data.gravity_m_s2, "travel_m": data.travel_m,
+            "mu_b": data.mu_b, "mu_t": data.mu_t, "gravity_m_s2": data.gravity_m_s2, "travel_m": data.travel_m,
             "v_threshold_V": data.threshold_voltage() if needs_threshold else None}
 
 
@@ -158,6 +161,9 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData) 
     shuffle = torch.Generator().manual_seed(config.seed)
     physics = config.kind in ("f", "f-coulomb")
     needs_vt = config.kind == "f"
+    if config.kind == "f-coulomb":
+        for d in [*train_sets, val_set]:
+            require_tip_contact(d)
     setups = {d.name: setup_record(d, "train", needs_vt) for d in train_sets}
     if val_set.name in setups:
         setups[val_set.name]["role"] = "train+val"
@@ -167,13 +173,11 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData) 
     window = config.window if config.kind == "lstm" else 1
     train_tr = transitions(train_sets, window, v_thresholds)
     val_tr = transitions([val_set], window, v_thresholds).to(device)
-    contact_loss = min(d.contact_loss_voltage() for d in train_sets)
     model = build(config.kind, Normalisation.from_transitions(train_tr),
-                  InputRange.from_transitions(train_tr, config.range_tolerance),
-                  config.model_hparams(contact_loss, train_sets[0].gravity_m_s2))
+                  InputRange.from_transitions(train_tr, config.range_tolerance), config.model_hparams(train_sets))
     if physics:
         first = setups[train_sets[0].name]
-        model.set_setup(first["coin_mass_kg"], first["mu_b"], first["v_threshold_V"] or math.nan)
+        model.set_setup(first["coin_mass_kg"], first["mu_b"], first["v_threshold_V"] or math.nan, first["mu_t"])
     model.to(device)
     train_tr = train_tr.to(device)
     optimiser = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.lr)

@@ -8,8 +8,9 @@ import pytest
 import torch
 import xarray as xr
 
-from surrogate.data import DatasetError, load_setup, load_sweep, transitions
+from surrogate.data import DatasetError, load_setup, load_sweep, require_tip_contact, transitions
 from surrogate.models import Normalisation
+from surrogate.train import TrainConfig, train
 
 
 def test_transitions_pair_each_state_with_the_next_increment(sweep):
@@ -22,6 +23,7 @@ def test_transitions_pair_each_state_with_the_next_increment(sweep):
     assert tr.z[k].tolist() == [data.Fx[k + 1], data.Fy[k + 1]]
     assert tr.s_next[k].tolist() == [data.x[k + 1], data.u[k + 1]]
     assert tr.phi[k].tolist()[:2] == [data.coin_mass_kg, data.mu_b] and math.isnan(tr.phi[k, 2])
+    assert tr.phi[k, 3].item() == data.mu_t == 0.5 and tr.v_prev[k].item() == data.V[k]
     assert tr.window.shape == (len(tr), 8, 4)
     assert torch.equal(tr.window[k, -1], torch.cat([tr.s[k], tr.a[k]]))
     assert torch.equal(tr.window[k, 0], torch.cat([tr.s[k - 7], tr.a[k - 7]]))
@@ -105,6 +107,17 @@ def test_missing_file_and_folder(sweep_dir, tmp_path):
         load_sweep(sweep_dir, ["C1", "C9"])
     with pytest.raises(DatasetError, match="no such data folder"):
         load_sweep(tmp_path / "nowhere", ["C1"])
+
+
+def test_dataset_without_the_tip_contact_attributes_is_refused_by_f_coulomb(sweep_dir, tmp_path):
+    def old(ds):
+        del ds.attrs["contact_slip_rate_reg_m_s"]
+    data = load_setup(_corrupt(sweep_dir, tmp_path, old))
+    assert math.isnan(data.slip_rate_reg_m_s)
+    with pytest.raises(DatasetError, match="'contact_slip_rate_reg_m_s' is missing.*rerun the sweep"):
+        require_tip_contact(data)
+    with pytest.raises(DatasetError, match="'contact_slip_rate_reg_m_s'"):
+        train(TrainConfig(kind="f-coulomb", epochs=1), [data], data)
 
 
 def test_coin_that_never_moves_has_no_threshold(sweep_dir, tmp_path):

@@ -52,8 +52,11 @@ def test_batched_rollout_matches_single(sweep, trained):
         many = rollout(model, np.tile(s0, (3, 1)), np.tile(actions, (3, 1, 1)), engine="torch").states
     assert many.shape == (3, data.n_steps, 2)
     assert torch.equal(many[0], many[2])
-    scale = max(data.travel_m, float(one.abs().max()))
-    assert (many - one).abs().max() < 1e-6 * scale
+    scale = max(data.travel_m, float(one[..., 0].abs().max()))
+    assert (many - one)[..., 0].abs().max() < 1e-6 * scale
+    # velocities: the tip's speed is a float32 stroke difference over Δt, so batched and
+    # single matrix products may differ by an ulp of X / Δt
+    assert (many - one)[..., 1].abs().max() < 1e-4 * float(one[..., 1].abs().max())
 
 
 def test_rollout_is_differentiable_in_phi(sweep, trained):
