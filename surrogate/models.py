@@ -297,7 +297,9 @@ def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps: float, iterations: int =
         zero = torch.zeros_like(ground_reaction)
         lo = torch.where(sign > 0, zero, torch.minimum(u - reach, zero))
         hi = torch.where(sign > 0, torch.maximum(u + reach, zero), zero)
-        v = torch.minimum(torch.maximum(w + zero, lo), hi)
+        # start where the tip's friction balances the ground's alone (inertia neglected)
+        ratio = torch.clamp(sign * cap_b / torch.clamp(cap_t, min=1e-300), -0.999999, 0.999999)
+        v = torch.minimum(torch.maximum(w - eps * ratio / torch.sqrt(1 - ratio * ratio), lo), hi)
         for _ in range(iterations):
             r = residual(v)
             lo, hi = torch.where(r < 0, v, lo), torch.where(r >= 0, v, hi)

@@ -140,7 +140,9 @@ static double tip_coin_step(double u, double w, double cap_t, double cap_b, doub
     const double sign = reaction > 0.0 ? 1.0 : -1.0, reach = (cap_t + cap_b) / c;
     double lo = sign > 0.0 ? 0.0 : fmin(u - reach, 0.0);
     double hi = sign > 0.0 ? fmax(u + reach, 0.0) : 0.0;
-    double v = fmin(fmax(w, lo), hi), r, slope, d;
+    /* start where the tip's friction balances the ground's alone (inertia neglected) */
+    const double ratio = fmin(fmax(sign * cap_b / fmax(cap_t, 1e-300), -0.999999), 0.999999);
+    double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi), r, slope, d;
     for (int k = 0; k <= iterations; k++) {
         d = w - v;
         r = c * (v - u) - cap_t * regularised_slip(d, eps) + sign * cap_b;
