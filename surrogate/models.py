@@ -295,17 +295,22 @@ def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps: float, iterations: int =
     with torch.no_grad():
         reach = (cap_t + cap_b) / c
         zero = torch.zeros_like(ground_reaction)
-        lo = torch.where(sign > 0, zero, torch.minimum(u - reach, zero))
-        hi = torch.where(sign > 0, torch.maximum(u + reach, zero), zero)
+        # a stuck row gets the empty bracket [0, 0]: it needs no solve
+        lo = torch.where((sign > 0) | stuck, zero, torch.minimum(u - reach, zero))
+        hi = torch.where((sign < 0) | stuck, zero, torch.maximum(u + reach, zero))
         # start where the tip's friction balances the ground's alone (inertia neglected)
         ratio = torch.clamp(sign * cap_b / torch.clamp(cap_t, min=1e-300), -0.999999, 0.999999)
         v = torch.minimum(torch.maximum(w - eps * ratio / torch.sqrt(1 - ratio * ratio), lo), hi)
+        change = hi - lo
         for _ in range(iterations):
             r = residual(v)
             lo, hi = torch.where(r < 0, v, lo), torch.where(r >= 0, v, hi)
-            newton = v - r / slope(v)
-            v, previous = torch.where((newton <= lo) | (newton >= hi), 0.5 * (lo + hi), newton), v
-            if bool(torch.all((v - previous).abs() <= 1e-13 * (v.abs() + eps))):
+            step = r / slope(v)
+            # bisect where Newton leaves the bracket or does not halve its last change
+            bisect = (v - step < lo) | (v - step > hi) | (2 * step.abs() > change.abs())
+            v, previous = torch.where(bisect, 0.5 * (lo + hi), v - step), v
+            change = v - previous
+            if bool(torch.all(change.abs() <= 1e-13 * (v.abs() + eps))):
                 break
     v = v - residual(v) / slope(v).detach()
     u_next = torch.where(stuck, torch.zeros_like(v), v)

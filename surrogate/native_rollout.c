@@ -142,7 +142,7 @@ static double tip_coin_step(double u, double w, double cap_t, double cap_b, doub
     double hi = sign > 0.0 ? fmax(u + reach, 0.0) : 0.0;
     /* start where the tip's friction balances the ground's alone (inertia neglected) */
     const double ratio = fmin(fmax(sign * cap_b / fmax(cap_t, 1e-300), -0.999999), 0.999999);
-    double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi), r, slope, d;
+    double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi), r, slope, d, change = hi - lo;
     for (int k = 0; k <= iterations; k++) {
         d = w - v;
         r = c * (v - u) - cap_t * regularised_slip(d, eps) + sign * cap_b;
@@ -153,12 +153,14 @@ static double tip_coin_step(double u, double w, double cap_t, double cap_b, doub
             lo = v;
         else
             hi = v;
-        double next = v - r / slope;
-        if (next <= lo || next >= hi)
+        /* bisect where Newton leaves the bracket or does not halve its last change */
+        const double step = r / slope;
+        double next = v - step;
+        if (next < lo || next > hi || 2.0 * fabs(step) > fabs(change))
             next = 0.5 * (lo + hi);
-        const double change = fabs(next - v);
+        change = next - v;
         v = next;
-        if (change <= 1e-13 * (fabs(v) + eps)) {
+        if (fabs(change) <= 1e-13 * (fabs(v) + eps)) {
             d = w - v;
             r = c * (v - u) - cap_t * regularised_slip(d, eps) + sign * cap_b;
             slope = c + cap_t * eps * eps / pow(d * d + eps * eps, 1.5);
