@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import ufl
 
 
@@ -81,3 +82,14 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
         Fy=traction[1] * ds_contact,
         penalty_N_m3=penalty_N_m3,
     )
+
+
+def rounded_cylinder_distance(rho, y, top_y: float, radius: float, edge_radius: float):
+    """Signed distance (m, negative inside) of points at distance ``rho`` from the axis and
+    height ``y`` to the upright cylinder with a rounded top rim — NumPy twin of the UFL
+    expression in :func:`contact_terms` (inside the body only the
+    nearer of the top face and the side wall counts, as there)."""
+    q_r, q_y = rho - (radius - edge_radius), y - (top_y - edge_radius)
+    corner = (q_r > 0) & (q_y > 0)
+    flat = np.where(q_y > q_r, q_y, q_r)
+    return np.where(corner, np.hypot(q_r, q_y), flat) - edge_radius

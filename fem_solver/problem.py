@@ -264,7 +264,8 @@ class DEAProblem:
         return np.array([compat.assemble_scalar(f, self.comm) for f in self.tip_forms]) / self.tip_area
 
     def max_penetration(self) -> float:
-        """Largest penetration of the DEA's underside nodes into the obstacle's top face (m)."""
+        """Largest penetration of the DEA's underside nodes into the obstacle (m): the signed
+        distance of fem_solver/contact.py (cylinder with the rounded rim), evaluated at nodes."""
         if self.contact is None:
             return 0.0
         lay = self.layout
@@ -275,7 +276,8 @@ class DEAProblem:
         coords, dofs = self._underside
         x = coords + self.w.x.array[dofs]
         rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
-        depth = -np.maximum(x[:, 1] - lay.obstacle_top_y_m, rho - lay.obstacle_radius_m)
+        depth = -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
+                                                   self.obstacle.edge_radius_m)
         local = float(np.max(depth, initial=0.0))
         return self.comm.allreduce(local, op=MPI.MAX)
 
@@ -289,3 +291,4 @@ class DEAProblem:
 
     def num_dofs(self) -> int:
         return self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
+

@@ -50,3 +50,16 @@ def test_sliding_coin_decelerates_at_mu_g_and_stops():
 def test_static_friction_holds_below_the_cone():
     state = coulomb_step(CoinState(), -0.99 * MU * M * G, 0.0, 1e-3, M, MU, G)
     assert state.stick and state.x == 0.0 and state.u == 0.0
+
+
+def test_penetration_measure_uses_the_contact_s_rounded_rim():
+    """The nodal penetration is the contact's own signed distance: flat top, side wall and
+    fillet, so a point above the sharp corner (outside the rounded rim) is not 'inside'."""
+    from fem_solver.contact import rounded_cylinder_distance
+    top, radius, fillet = 1.0e-3, 5e-3, 3e-4
+    rho = np.array([0.0, 0.0, radius + 2e-5, radius, radius - fillet + fillet / np.sqrt(2)])
+    y = np.array([top - 4e-5, top + 1e-5, top - 1e-3, top, top - fillet + fillet / np.sqrt(2) - 1e-6])
+    d = rounded_cylinder_distance(rho, y, top, radius, fillet)
+    assert d[:3] == pytest.approx([-4e-5, 1e-5, 2e-5], abs=1e-12)
+    assert d[3] == pytest.approx((np.sqrt(2) - 1) * fillet, rel=1e-12)      # sharp corner: outside
+    assert d[4] == pytest.approx(-1e-6 / np.sqrt(2), rel=3e-3)               # just inside the fillet
