@@ -434,9 +434,10 @@ TIME_KEY = "solve_s"   # time stepping incl. placement; meshing and the one-off 
 
 
 def pareto_front(rows, error_key: str = "error_pct") -> set[str]:
-    """Names of the rows no faster row (on :data:`TIME_KEY`) beats on ``error_key`` (reference and
-    failures excluded)."""
+    """Names of the FEM rows no faster FEM row (on :data:`TIME_KEY`) beats on ``error_key``
+    (reference, failures and surrogate rows excluded: the front is the FEM's own)."""
     usable = [r for r in rows if r.get("status") == "ok" and not r.get("is_reference")
+              and r.get("kind", "fem") == "fem"
               and math.isfinite(r.get(error_key, math.nan)) and r[error_key] > 0]
     front, best = set(), math.inf
     for r in sorted(usable, key=lambda r: (r[TIME_KEY], r[error_key])):
@@ -504,8 +505,8 @@ def plot_pareto(rows, path: Path) -> None:
         for kind, marker in (("fem", "o"), ("surrogate", "s")):
             sel = [r for r in pts if r.get("kind", "fem") == kind]
             if sel:
-                ax.scatter([r[TIME_KEY] for r in sel], [r[key] for r in sel], marker=marker, color="C0",
-                           label=f"{kind} rungs", zorder=2)
+                ax.scatter([r[TIME_KEY] for r in sel], [r[key] for r in sel], marker=marker,
+                           color="C0" if kind == "fem" else "C2", label=f"{kind} rows", zorder=2)
         for r in pts:
             ax.annotate(r["case"], (r[TIME_KEY], r[key]), fontsize=7, xytext=(4, 3), textcoords="offset points")
         front = sorted((r for r in pts if r.get(front_key)), key=lambda r: r[TIME_KEY])
@@ -540,7 +541,8 @@ def default_verdict(rows) -> str:
     if d is None or d["status"] != "ok" or not math.isfinite(d.get("error_pct", math.nan)):
         return "The shipped default rung did not run (or the reference is missing): no verdict."
     beaten = [r["case"] for r in rows if r["status"] == "ok" and not r.get("is_reference") and r is not d
-              and r[TIME_KEY] <= d[TIME_KEY] and r.get("error_pct", math.inf) < d["error_pct"]]
+              and r.get("kind", "fem") == "fem" and r[TIME_KEY] <= d[TIME_KEY]
+              and r.get("error_pct", math.inf) < d["error_pct"]]
     where = "on the Pareto front" if d.get("on_pareto") else f"not on the Pareto front (beaten by {', '.join(beaten)})"
     where += (f"; among the rungs with the reference's ν = {d['poisson_ratio']:g} it is "
               f"{'on' if d.get('on_pareto_same_nu') else 'not on'} the front")
@@ -559,7 +561,9 @@ def write_markdown(rows, path: Path, header: str) -> None:
         "error % = max(MAE x / reference travel, MAE Fy / reference max Fy); Pareto = no rung with a shorter "
         "solve time has a smaller error. solve s = time stepping incl. the initial placement; wall s adds "
         "meshing and the one-off form compilation (cached across runs). ν = 0.49 rungs include the change of "
-        "material (rung hex-Q2-mixed-L0-nu049 isolates it).", ""])
+        "material (rung hex-Q2-mixed-L0-nu049 isolates it). Surrogate rows (if any): a trained model rolled out "
+        "over the sweep dataset of the same setup, solve s = the rollout; their error includes that of the FEM "
+        "they learned from; the Pareto front is the FEM rungs'.", ""])
     write_text_atomic(text, path)
 
 
@@ -574,13 +578,19 @@ def report(rows, out_dir: Path, header: str = "") -> list[dict]:
 
 
 def run_ladder(scene_name: str, setup, out_dir, comm, rungs: str = "quick", overrides=(), only=None,
-               ranks_per_case: int = 1) -> list[dict] | None:
-    """Run (or resume) the ladder and write its report; rank 0 returns the rows, others None."""
+               ranks_per_case: int = 1, extra_rows=None) -> list[dict] | None:
+    """Run (or resume) the ladder and write its report; rank 0 returns the rows, others None.
+
+    ``extra_rows``: a callable run on rank 0 after the FEM rungs, returning more rows with
+    a ``dataset`` of (t, x, Fy) to compare with the reference (the surrogates' rows,
+    :func:`surrogate.ladder.ladder_rows`)."""
     out_dir = Path(out_dir)
     cases = ladder_cases(scene_name, setup, rungs, overrides, only)
     results = run_cases(cases, out_dir, comm, ranks_per_case, desc="fidelity")
     if comm.rank != 0:
         return None
+    if extra_rows is not None:
+        results = results + extra_rows(cases[0].setup)
     setup_name = cases[0].setup or "-"
     header = (f"Scene `{scene_name}`, setup `{setup_name}`, rungs `{rungs}`"
               f"{f' (base step end/{STUDY_STEPS}; the shipped step in rung {SHIPPED})' if rungs == 'quick' else ''}, "

@@ -5,6 +5,8 @@ default), resume after an interruption, and print their table on rank 0.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 
 def _names(text: str) -> list[str] | None:
     names = [s.strip() for s in text.split(",") if s.strip()]
@@ -15,8 +17,19 @@ def cmd_fidelity(args) -> int:
     from mpi4py import MPI
 
     from fem_solver.fidelity import run_ladder, summary_table
+    extra = None
+    if args.surrogate:   # models and their dataset are checked before any FEM work
+        from surrogate import ladder
+        from surrogate.data import load_setup
+        from workflows import scene as scenes
+        setup = scenes.load(args.scene, setup=args.setup, overrides=args.overrides).setup
+        models = ladder.load_models(args.surrogate)
+        load_setup(Path(args.surrogate_data) / f"{setup}.nc")
+
+        def extra(setup_name):
+            return ladder.ladder_rows(models, args.surrogate_data, setup_name, args.out)
     rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, args.overrides,
-                      _names(args.only), args.ranks_per_case)
+                      _names(args.only), args.ranks_per_case, extra_rows=extra)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print(summary_table(rows))
@@ -54,6 +67,11 @@ def register(sub) -> None:
                    help="quick: base step end/100 plus the shipped step; full: the scene's steps (default quick)")
     p.add_argument("--only", default="", help="comma-separated rung names (default: all; the reference is "
                                               "always run)")
+    p.add_argument("--surrogate", action="append", default=[], metavar="MODEL_DIR",
+                   help="also place a trained surrogate (a folder from `deapull train`/`experiments`) on the "
+                        "ladder, rolled out over the sweep dataset of the setup; repeatable")
+    p.add_argument("--surrogate-data", default="data", help="sweep folder with <setup>.nc for --surrogate "
+                                                            "(default data)")
     _common(p)
     p.set_defaults(func=cmd_fidelity)
 
