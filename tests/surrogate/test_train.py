@@ -2,12 +2,15 @@
 in the static stage."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
-from surrogate.evaluate import evaluate
+from surrogate.evaluate import evaluate, use_setup
 from surrogate.models import KINDS
+from surrogate.rollout import rollout
 from surrogate.train import TrainConfig, train
+from tests.surrogate.conftest import QUICK
 from workflows.errors import InputError
 
 
@@ -60,3 +63,29 @@ def test_bad_configuration_is_refused(bad, match):
 def test_cuda_without_gpu_is_refused():
     with pytest.raises(InputError, match="no CUDA device"):
         TrainConfig(kind="nn", device="cuda")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("kind", KINDS)
+def test_cuda_training_and_batched_rollout_match_the_cpu(sweep, kind):
+    """On a GPU: training runs on CUDA and lowers the loss, and a batched torch rollout on
+    CUDA gives the CPU's rollout (same weights) to round-off."""
+    result = train(TrainConfig(kind=kind, device="cuda", **QUICK[kind]), [sweep["C1"]], sweep["C2"])
+    assert result.history[-1]["train_loss"] < result.history[0]["train_loss"]
+    model, data = result.model, sweep["C1"]
+    use_setup(model, data)
+    s0, actions = data.states()[0], data.actions()
+    with torch.inference_mode():
+        cpu = rollout(model, s0, actions, engine="torch").states[0]
+        model.to("cuda")
+        batch = 64
+        gpu = rollout(model, np.tile(s0, (batch, 1)), np.tile(actions, (batch, 1, 1)), engine="torch").states
+    assert gpu.device.type == "cuda" and gpu.shape[0] == batch
+    gpu = gpu.cpu()
+    assert torch.allclose(gpu[0], gpu[-1], rtol=0, atol=0, equal_nan=True)
+    # compare while the CPU rollout stays bounded: a briefly trained paper-law f may run away
+    bounded = torch.isfinite(cpu[:, 0]) & (cpu[:, 0].abs() < 10 * data.travel_m)
+    n = int(torch.cumprod(bounded.int(), 0).sum())
+    assert n > 50
+    scale = float(cpu[:n, 0].abs().max()) + 1e-6
+    assert float((gpu[0, :n, 0] - cpu[:n, 0]).abs().max()) < 1e-3 * scale
