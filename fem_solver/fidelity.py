@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from fem_solver.parallel import idle_barrier
 from workflows import scene as scenes
 from workflows.errors import InputError
 
@@ -235,7 +236,7 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
         if comm.rank == 0:
             bar.n = sum(load_result(out_dir, c) is not None for c in cases)
             bar.refresh()
-    comm.barrier()
+    idle_barrier(comm)
     bar.n = len(cases)
     bar.close()
     group.Free()

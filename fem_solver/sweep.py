@@ -16,6 +16,7 @@ import xarray as xr
 from tqdm import tqdm
 
 from fem_solver import dataset
+from fem_solver.parallel import idle_barrier
 from fem_solver.run import solve_scene
 from fem_solver.stepping import SolveFailed
 from workflows import scene as scenes
@@ -72,7 +73,7 @@ def sweep(scene_name, setups, out_dir, comm, ranks_per_setup: int = 1, overrides
         if comm.rank == 0:
             bar.n = sum(dataset.is_complete(out_dir / f"{s}.nc") for s in resolved)
             bar.refresh()
-    comm.barrier()
+    idle_barrier(comm)
     failures = {k: v for part in comm.allgather(failures) for k, v in part.items()}
     bar.n = len(resolved) - len(failures)
     bar.close()

@@ -197,3 +197,32 @@ def test_material_and_formulation_variants(overrides, rel, bending_runs, tmp_pat
     ds = xr.open_dataset(solve_scene(sc, tmp_path, progress=False))
     ref = float(bending_runs[0][1].tip_uy[-1])
     assert float(ds.tip_uy[-1]) == pytest.approx(ref, rel=rel)
+
+
+IDLE_WAIT = """
+import time
+from mpi4py import MPI
+from fem_solver.parallel import idle_barrier
+comm = MPI.COMM_WORLD
+if comm.rank == 1:
+    time.sleep(1.5)  # the slow group
+cpu = time.process_time()
+(idle_barrier if "{kind}" == "idle" else lambda c: c.Barrier())(comm)
+cpu = time.process_time() - cpu
+if comm.rank == 0:
+    print(f"waiting rank used {{cpu:.3f}} s of CPU")
+"""
+
+
+@pytest.mark.parametrize("kind", ["idle", "blocking"])
+def test_a_rank_that_waits_for_the_others_sleeps(kind):
+    """The harnesses' closing barrier leaves the core free: rank 0 waits 1.5 s for rank 1
+    and uses (almost) no CPU, where Open MPI's blocking Barrier polls the whole time (the
+    blocking case shows the check can fail)."""
+    proc = mpirun(2, "-c", IDLE_WAIT.format(kind=kind), timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    cpu = float(proc.stdout.split("used ")[1].split(" s")[0])
+    if kind == "idle":
+        assert cpu < 0.2
+    else:
+        assert cpu > 0.4
