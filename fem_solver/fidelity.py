@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from fem_solver.parallel import idle_barrier
+from fem_solver.parallel import idle_barrier, initialise_petsc
 from workflows import scene as scenes
 from workflows.errors import InputError
 
@@ -224,6 +224,7 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
     todo = comm.bcast([c for c in cases if c.name in resolved and load_result(out_dir, c) is None]
                       if comm.rank == 0 else None, root=0)
     n_groups, color = comm.size // ranks_per_case, comm.rank // ranks_per_case
+    initialise_petsc(comm)
     group = comm.Split(color, comm.rank)
     if comm.rank == 0:
         log.info("%s: %d cases, %d already done, %d to run on %d group(s) of %d rank(s) -> %s", desc, len(cases),

@@ -18,3 +18,14 @@ def idle_barrier(comm, poll_s: float = POLL_S) -> None:
     request = comm.Ibarrier()
     while not request.Test():
         time.sleep(poll_s)
+
+
+def initialise_petsc(comm) -> None:
+    """Import dolfinx (and so initialise PETSc) on every rank before the groups split.
+
+    PETSc's initialisation is collective on ``MPI_COMM_WORLD``: left to the first solve, it
+    runs only on the ranks that have a case, and when a rank has none (fewer cases left than
+    groups, as on a resumed run) the solving ranks wait for it forever.
+    """
+    import dolfinx.fem.petsc  # noqa: F401
+    comm.Barrier()

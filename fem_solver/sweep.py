@@ -16,7 +16,7 @@ import xarray as xr
 from tqdm import tqdm
 
 from fem_solver import dataset
-from fem_solver.parallel import idle_barrier
+from fem_solver.parallel import idle_barrier, initialise_petsc
 from fem_solver.run import solve_scene
 from fem_solver.stepping import SolveFailed
 from workflows import scene as scenes
@@ -55,6 +55,7 @@ def sweep(scene_name, setups, out_dir, comm, ranks_per_setup: int = 1, overrides
         raise InputError(f"--ranks-per-setup {ranks_per_setup}: must divide the number of ranks ({comm.size})")
     n_groups = comm.size // ranks_per_setup
     color = comm.rank // ranks_per_setup
+    initialise_petsc(comm)
     group = comm.Split(color, comm.rank)
     todo = comm.bcast([s for s in resolved if not dataset.is_complete(out_dir / f"{s}.nc")]
                       if comm.rank == 0 else None, root=0)

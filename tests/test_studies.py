@@ -153,3 +153,14 @@ def test_bad_input_exits_2_before_any_solve(tmp_path):
         proc = subprocess.run(_cli(*args, "--out", str(tmp_path)), capture_output=True, text=True, cwd=REPO)
         assert proc.returncode == 2 and "error" in proc.stderr and "Traceback" not in proc.stderr, args
     assert not (tmp_path / "cases").exists()
+
+
+@pytest.mark.mpi
+def test_fewer_cases_than_rank_groups_do_not_hang(tmp_path):
+    """One case on two ranks: rank 1 has nothing to solve. PETSc's initialisation is
+    collective on COMM_WORLD, so it must happen on every rank before the groups split
+    (it used to happen lazily on the solving rank alone, which then waited forever)."""
+    proc = mpirun(2, "-m", "workflows", "stability", "--out", str(tmp_path), "--protocol", "full",
+                  "--cases", "baseline", *_sets(TINY), timeout=150)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert list(pd.read_csv(tmp_path / "stability.csv").case) == ["baseline"]
