@@ -245,12 +245,18 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
 
 
 def fmt(value, spec: str = ".3g") -> str:
-    """A table cell: numbers formatted, NaN and None as '–'."""
+    """A table cell: numbers formatted, NaN and None as '–'.
+
+    ``spec = "s"``: a time in seconds, one decimal from 1 s on, two significant digits
+    below (a surrogate's rollout takes milliseconds).
+    """
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
     if isinstance(value, (bool, np.bool_)):
         return "yes" if value else "no"
     if isinstance(value, (int, float, np.number)):
+        if spec == "s":
+            spec = ".1f" if abs(value) >= 1 else ".2g"
         return format(value, spec)
     return str(value).replace("|", "\\|")
 
@@ -479,7 +485,7 @@ CSV_COLUMNS = ("case", "kind", "status", "elements", "cell", "order", "formulati
                "protocol", "overrides")
 MD_COLUMNS = (("rung", "case", ""), ("elements", "elements", ""), ("ν", "poisson_ratio", "g"),
               ("dt_max s", "dt_max_s", ".3g"), ("dofs", "dofs", "d"), ("steps", "steps", "d"),
-              ("Newton its", "newton_iterations", "d"), ("solve s", "solve_s", ".1f"), ("wall s", "wall_s", ".1f"),
+              ("Newton its", "newton_iterations", "d"), ("solve s", "solve_s", "s"), ("wall s", "wall_s", "s"),
               ("MAE x mm", "mae_x_mm", ".3g"), ("MAE Fy mN", "mae_Fy_mN", ".3g"), ("travel mm", "travel_mm", ".3f"),
               ("travel err %", "travel_err_pct", ".2f"), ("error %", "error_pct", ".2f"),
               ("Pareto", "on_pareto", ""), ("Pareto, same ν", "on_pareto_same_nu", ""), ("status", "status", ""))
@@ -528,9 +534,15 @@ def plot_pareto(rows, path: Path) -> None:
         ax.set_xlabel("run time: time stepping incl. placement, one core [s]")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
+    # one legend under both panels: inside an axes it hid the points in its corner
+    legend = {}
+    for ax in axes:
+        for handle, text in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(text, handle)
+    fig.legend(list(legend.values()), list(legend), loc="lower center", ncol=len(legend), fontsize=8,
+               frameon=False)
     fig.suptitle("FEM fidelity ladder: error against run time (reference: finest affordable rung)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
     fig.savefig(tmp, dpi=130)
     plt.close(fig)
@@ -606,7 +618,7 @@ def summary_table(rows) -> str:
     lines = [f"{'rung':28s} {'dofs':>7s} {'solve s':>8s} {'error %':>8s} {'travel err %':>12s} pareto  status",
              "-" * 86]
     for r in rows:
-        lines.append(f"{r['case']:28s} {fmt(r.get('dofs'), 'd'):>7s} {fmt(r.get(TIME_KEY), '.1f'):>8s} "
+        lines.append(f"{r['case']:28s} {fmt(r.get('dofs'), 'd'):>7s} {fmt(r.get(TIME_KEY), 's'):>8s} "
                      f"{fmt(r.get('error_pct'), '.2f'):>8s} {fmt(r.get('travel_err_pct'), '.2f'):>12s} "
                      f"{'*' if r.get('on_pareto') else ' ':>6s}  {r['status']}{' (reference)' if r.get('is_reference') else ''}")
     lines.append(default_verdict(rows))
