@@ -139,7 +139,7 @@ class Solver:
     electrostatics: str = _choice("energy", ("energy", "coupled"),
                                   "prescribed nominal field, or solve Gauss's law for the potential")
     newton_rtol: float = _pos(1e-8, "relative residual tolerance")
-    newton_atol: float = _pos(1e-10, "absolute residual tolerance")
+    newton_atol: float = _pos(1e-8, "absolute residual tolerance")
     newton_max_it: int = _num(40, lo=0, integer=True, doc="Newton iterations per attempt")
     jacobian_reuse_ratio: float = _num(0.3, lo=0.0, hi=1.0, lo_open=False, hi_open=True,
                                        doc="keep the factorised Jacobian while each Newton iteration cuts the "
