@@ -54,9 +54,11 @@ def test_batched_rollout_matches_single(sweep, trained):
     assert torch.equal(many[0], many[2])
     scale = max(data.travel_m, float(one[..., 0].abs().max()))
     assert (many - one)[..., 0].abs().max() < 1e-6 * scale
-    # velocities: the tip's speed is a float32 stroke difference over Δt, so batched and
-    # single matrix products may differ by an ulp of X / Δt
-    assert (many - one)[..., 1].abs().max() < 1e-4 * float(one[..., 1].abs().max())
+    # velocities: the tip's speed is a difference of float32 strokes over Δt, and batched and
+    # single matrix products may round the stroke differently: allow a few float32 ulps of
+    # the stroke per step (a batching bug would show errors of the size of u itself)
+    ulp = float(np.spacing(np.float32(scale)))
+    assert (many - one)[..., 1].abs().max() < 8 * ulp / float(data.dt[1:].min())
 
 
 def test_rollout_is_differentiable_in_phi(sweep, trained):
