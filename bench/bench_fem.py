@@ -20,6 +20,7 @@ import xarray as xr
 PAPER_ABAQUS_S = 130.0          # paper: 1 s / 700 points, average over the test coins
 TARGET_S, TARGET_TRAVEL_ERR, TARGET_SWEEP_S = 13.0, 0.02, 60.0   # issue targets
 REFINED = ("mesh.n_length=32", "mesh.n_width=4")                  # finest affordable reference
+OLD_ATOL = 1e-10                # Newton absolute tolerance before 2026-11-23 (docs/physics.md)
 
 
 def run(cmd, env=None) -> float:
@@ -41,6 +42,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="out/bench_fem")
     ap.add_argument("--np", type=int, default=2, help="MPI ranks for the sweep")
     ap.add_argument("--skip-sweep", action="store_true")
+    ap.add_argument("--baseline-atol", type=float, default=OLD_ATOL,
+                    help="also solve C3 with this Newton atol and compare (0: skip)")
     args = ap.parse_args(argv)
     out = Path(args.out)
 
@@ -53,6 +56,13 @@ def main(argv=None) -> int:
            "travel_ref_mm": travel_ref * 1e3, "travel_rel_error": travel_err,
            "refined_wall_s": float(refined.attrs["wall_time_total_s"]), "dofs": int(default.attrs["mesh_dofs"]),
            "dofs_ref": int(refined.attrs["mesh_dofs"])}
+    if args.baseline_atol > 0:
+        base = solve(out / "baseline_atol", (f"solver.newton_atol={args.baseline_atol:g}",))
+        res.update({"baseline_atol": args.baseline_atol, "baseline_wall_s": float(base.attrs["wall_time_total_s"]),
+                    "newton_its": int(default.newton_iterations.sum()),
+                    "baseline_newton_its": int(base.newton_iterations.sum()),
+                    "baseline_max_dx_m": float(abs(base.x - default.x).max()) if base.sizes == default.sizes
+                    else float("nan")})
     if not args.skip_sweep:
         env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                    OMPI_MCA_rmaps_base_oversubscribe="1")
@@ -73,6 +83,13 @@ def main(argv=None) -> int:
     print(f"{'coin travel [mm] (default / refined)':38s} {travel * 1e3:10.3f} {travel_ref * 1e3:10.3f}")
     print(f"{'  travel error vs refined mesh':38s} {100 * travel_err:9.2f}% {'':>10s} {100 * TARGET_TRAVEL_ERR:7.1f}%")
     print(f"{'  dofs (default / refined)':38s} {res['dofs']:10d} {res['dofs_ref']:10d}")
+    if "baseline_wall_s" in res:
+        b = res["baseline_wall_s"]
+        print(f"{f'  vs Newton atol {args.baseline_atol:g}: wall [s]':38s} {t_one:10.1f} {b:10.1f}"
+              f"   ratio {t_one / b:.2f}")
+        print(f"{'  Newton iterations (default / baseline)':38s} {res['newton_its']:10d} "
+              f"{res['baseline_newton_its']:10d}   ratio {res['newton_its'] / res['baseline_newton_its']:.2f}")
+        print(f"{'  max |x difference| [nm]':38s} {1e9 * res['baseline_max_dx_m']:10.2f}")
     if "sweep_wall_s" in res:
         print(f"{f'8-setup sweep, mpirun -n {args.np} [s]':38s} {res['sweep_wall_s']:10.1f} "
               f"{8 * PAPER_ABAQUS_S:10.1f} {TARGET_SWEEP_S:8.1f}")
