@@ -291,4 +291,3 @@ class DEAProblem:
 
     def num_dofs(self) -> int:
         return self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs
-

@@ -198,8 +198,7 @@ class PhysicsModel(Surrogate):
             raise ValueError(f"law must be 'paper', not {law!r} (the Coulomb variant is TipContactModel)")
         hparams = {"law": law, "hidden": hidden, "layers": layers, "gravity_m_s2": gravity_m_s2,
                    "v_contact_loss_V": v_contact_loss_V}
-        super().__init__(norm, input_range, hparams)
-        self.law = law
+        super().__init__(norm, input_range, hparams)   # 'law' stays in hparams: saved models name it
         self.material = mlp(4, hidden, layers, 2)
         self.mass_kg = nn.Parameter(torch.tensor(mass_kg), requires_grad=False)
         self.mu_b = nn.Parameter(torch.tensor(mu_b), requires_grad=False)

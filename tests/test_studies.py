@@ -164,3 +164,9 @@ def test_fewer_cases_than_rank_groups_do_not_hang(tmp_path):
                   "--cases", "baseline", *_sets(TINY), timeout=150)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert list(pd.read_csv(tmp_path / "stability.csv").case) == ["baseline"]
+
+
+def test_table_times_keep_two_digits_below_a_second():
+    assert fidelity.fmt(39.94, "s") == "39.9"
+    assert fidelity.fmt(0.002171, "s") == "0.0022"     # a surrogate's rollout, not "0.0"
+    assert fidelity.fmt(float("nan"), "s") == "–"
