@@ -25,6 +25,9 @@ demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3, 
 test: setup ## run the test suite (serial and mpirun -n 2 checks)
 	$(PY) -m pytest -q
 
+test-data: setup ## regenerate the surrogate tests' FEM fixture tests/data/sweep (mpirun -n 2, about a minute)
+	$(PY) tests/data/make_sweep.py
+
 mesh: setup ## mesh the default scene into $(OUT)/mesh
 	$(DEAPULL) mesh --scene coin_pull --out $(OUT)/mesh
 

@@ -30,7 +30,7 @@ def run(cmd, env=None) -> float:
 
 
 def solve(out: Path, overrides=()) -> xr.Dataset:
-    cmd = [sys.executable, "-m", "workflows", "solve", "--scene", "coin_pull", "--setup", "C3", "--out", str(out)]
+    cmd = [sys.executable, "-m", "deapull.workflows", "solve", "--scene", "coin_pull", "--setup", "C3", "--out", str(out)]
     for o in overrides:
         cmd += ["--set", o]
     run(cmd)
@@ -70,7 +70,7 @@ def main(argv=None) -> int:
         if sweep_dir.exists():
             for f in sweep_dir.glob("C*.nc"):
                 f.unlink()
-        res["sweep_wall_s"] = run(["mpirun", "-n", str(args.np), sys.executable, "-m", "workflows", "sweep",
+        res["sweep_wall_s"] = run(["mpirun", "-n", str(args.np), sys.executable, "-m", "deapull.workflows", "sweep",
                                    "--scene", "coin_pull", "--out", str(sweep_dir)], env=env)
         res["sweep_np"] = args.np
     (out / "bench_fem.json").write_text(json.dumps(res, indent=2))

@@ -27,13 +27,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from surrogate import native, store  # noqa: E402
-from surrogate.data import load_sweep  # noqa: E402
-from surrogate.evaluate import use_setup  # noqa: E402
-from surrogate.experiments import PAPER, PAPER_FEM_S  # noqa: E402
-from surrogate.models import KINDS  # noqa: E402
-from surrogate.rollout import OutOfRangeWarning, rollout  # noqa: E402
-from surrogate.train import TrainConfig, train  # noqa: E402
+from deapull.surrogate import native, store  # noqa: E402
+from deapull.surrogate.data import load_sweep  # noqa: E402
+from deapull.surrogate.experiments import PAPER, PAPER_FEM_S  # noqa: E402
+from deapull.surrogate.models import KINDS  # noqa: E402
+from deapull.surrogate.rollout import OutOfRangeWarning, rollout  # noqa: E402
+from deapull.surrogate.train import TrainConfig, train  # noqa: E402
 
 TARGET_MS = 7.0  # issue 5: a 1 s rollout in <= 7 ms on a CPU
 STEPS = 1000
@@ -93,23 +92,23 @@ def main(argv=None) -> int:
     cuda = torch.cuda.is_available()
     rows = []
     for kind, model in models.items():
-        use_setup(model, data["C3"])
+        phi = model.phi_of(data["C3"])      # the test coin
         row = {"model": kind}
         with torch.inference_mode():
             engines = ["native", "torch"] if native.supports(model) else ["torch"]
             for engine in engines:
                 row[f"cpu_b1_{engine}_ms"], row[f"cpu_b1_{engine}_min_ms"] = median_ms(
-                    lambda: rollout(model, s0, actions, engine=engine), args.repeats)
+                    lambda: rollout(model, phi, s0, actions, engine=engine), args.repeats)
             if args.cpu_batch:
                 s0b, ab = np.zeros((args.cpu_batch, 2)), np.tile(actions, (args.cpu_batch, 1, 1))
-                total, _ = median_ms(lambda: rollout(model, s0b, ab, engine="torch"), 3)
+                total, _ = median_ms(lambda: rollout(model, phi, s0b, ab, engine="torch"), 3)
                 row["cpu_batch"], row["cpu_batch_total_ms"] = args.cpu_batch, total
                 row["cpu_batch_per_rollout_ms"] = total / args.cpu_batch
             if cuda:
                 gpu = model.to("cuda")
                 s0g = torch.zeros(args.batch, 2, device="cuda")
                 ag = torch.as_tensor(actions, dtype=torch.float32, device="cuda").expand(args.batch, -1, -1)
-                total, _ = median_ms(lambda: rollout(gpu, s0g, ag, engine="torch"), 3, torch.cuda.synchronize)
+                total, _ = median_ms(lambda: rollout(gpu, phi, s0g, ag, engine="torch"), 3, torch.cuda.synchronize)
                 row["cuda_batch"], row["cuda_batch_total_ms"] = args.batch, total
                 row["cuda_batch_per_rollout_ms"] = total / args.batch
                 model.cpu()
@@ -132,8 +131,9 @@ def main(argv=None) -> int:
             cells.append(f"{row['cpu_batch_per_rollout_ms']:.3f}")
         if cuda:
             cells.append(f"{row['cuda_batch_per_rollout_ms']:.4f}")
-        paper = PAPER["rollout_ms"].get("f" if row["model"].startswith("f") else row["model"])
-        cells += [f"{paper:.0f}" if paper else "-", f"{TARGET_MS:.0f}" if row["model"].startswith("f") else "-"]
+        physics = KINDS[row["model"]].physics
+        paper = PAPER["rollout_ms"].get("f" if physics else row["model"])
+        cells += [f"{paper:.0f}" if paper else "-", f"{TARGET_MS:.0f}" if physics else "-"]
         lines.append(cells)
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
     print("\n".join("  ".join(c.rjust(w) for c, w in zip(line, widths)) for line in lines))

@@ -38,9 +38,19 @@ def coulomb_step(state: CoinState, Fx: float, Fy: float, dt: float, mass: float,
 
 def force_balance_residual(prev: CoinState, new: CoinState, Fx: float, Fy: float, dt: float, mass: float,
                            mu_b: float, g: float) -> float:
-    """|m (u − u_n)/Δt − Fx + f_b| with f_b the Coulomb friction the step used (N); 0 when exact."""
+    """The coin's momentum balance over a step from ``prev`` to ``new`` under the force
+    (Fx, Fy) of the DEA (N); 0 when the balance holds::
+
+        slip    | m (u − u_n)/Δt − Fx + μ_b N sign(u) |,          N = max(m g + Fy, 0)
+        stick   max(| Fx − m (u − u_n)/Δt | − μ_b N, 0)      (static friction within the cone)
+
+    ``dt = 0`` (the placement, no step) checks the static cone without inertia. Fed the same
+    (Fx, Fy) that :func:`coulomb_step` used, it is zero by construction; the stepper feeds
+    it the DEA's force from the clamp reaction (``DEAProblem.obstacle_forces_from_reaction``),
+    which does not pass through the contact integral the coupling uses.
+    """
     normal = max(mass * g + Fy, 0.0)
-    inertia = mass * (new.u - prev.u) / dt
+    inertia = mass * (new.u - prev.u) / dt if dt > 0 else 0.0
     if new.stick:
         friction = Fx - inertia  # static friction takes whatever balances, if within the cone
         return max(abs(friction) - mu_b * normal, 0.0)

@@ -15,10 +15,8 @@ import ufl
 from dolfinx.io import gmshio
 from mpi4py import MPI
 
-from meshing import groups
-from workflows.errors import InputError
-
-DOLFINX_VERSION = dolfinx.__version__
+from deapull.meshing import groups
+from deapull.errors import InputError
 
 
 class MeshFileError(InputError):
@@ -223,6 +221,31 @@ def assemble_residual(b, compiled_F, compiled_J, bcs, x, lifting=True):
         dolfinx.fem.petsc.apply_lifting(b, [compiled_J], bcs=[bcs], x0=[x], scale=-1.0)
     b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     dolfinx.fem.petsc.set_bc(b, bcs, x, -1.0)
+
+
+def assemble_vector_free(b, compiled_F):
+    """b = F(x) on every row, the Dirichlet rows included (their entries are the reactions);
+    owned entries complete (ghost contributions added)."""
+    from petsc4py import PETSc
+    with b.localForm() as loc:
+        loc.set(0.0)
+    dolfinx.fem.petsc.assemble_vector(b, compiled_F)
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+
+
+def owned_component_dofs(space, mesh, facets, component: int, mixed: bool) -> np.ndarray:
+    """Indices, in the owned part of the space's PETSc vector, of the displacement's
+    ``component`` dofs on the given facets (the displacement is sub-space 0 when ``mixed``)."""
+    sub = space.sub(0).sub(component) if mixed else space.sub(component)
+    collapsed, _ = sub.collapse()
+    dofs = dolfinx.fem.locate_dofs_topological((sub, collapsed), mesh.topology.dim - 1, facets)[0]
+    owned = space.dofmap.index_map.size_local * space.dofmap.index_map_bs
+    return np.asarray(dofs[dofs < owned], dtype=np.int32)
+
+
+def sum_entries(b, rows: np.ndarray, comm) -> float:
+    """Sum over all ranks of the owned entries ``rows`` of the PETSc vector ``b``."""
+    return comm.allreduce(float(b.array_r[rows].sum()), op=MPI.SUM)
 
 
 def assemble_jacobian(A, compiled_J, bcs):

@@ -38,7 +38,6 @@ class ObstacleTerms:
     friction_residual: object  # friction virtual work (UFL form, residual sign)
     Fx: object                 # force of the DEA on the obstacle along x (UFL form)
     Fy: object                 # pressing force, positive downward (UFL form)
-    penalty_N_m3: float
 
 
 def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, radius, edge_radius, mu,
@@ -80,7 +79,6 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
         friction_residual=-ufl.dot(t_T, v) * ds_contact,
         Fx=-traction[0] * ds_contact,
         Fy=traction[1] * ds_contact,
-        penalty_N_m3=penalty_N_m3,
     )
 
 

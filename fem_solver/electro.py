@@ -40,6 +40,7 @@ def stack_voltage(voltage, dea):
 
 
 def free_strain(voltage: float, dea) -> float:
-    """Small-strain in-plane actuation strain ε* = ε E₀² / (2E) of a free film (DESIGN.md)."""
+    """Small-strain in-plane actuation strain ε* = ε E₀² / (2E) of a free film
+    (docs/physics.md, "Sizing")."""
     e0 = voltage / dea.film_thickness_m
     return permittivity(dea) * e0 ** 2 / (2 * dea.youngs_modulus_Pa)

@@ -15,9 +15,9 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from fem_solver import compat, contact, electro, materials
-from meshing import groups
-from meshing.layout import layout
+from deapull.fem_solver import compat, contact, electro, materials
+from deapull.meshing import groups
+from deapull.meshing.layout import layout
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,7 @@ class DEAProblem:
 
     Parameters
     ----------
-    scene : workflows.scene.Scene
+    scene : deapull.scene.Scene
     mesh, cell_tags, facet_tags : the DEA mesh (``fem_solver.compat.read_mesh``)
     """
 
@@ -125,6 +125,11 @@ class DEAProblem:
         jacobian = ufl.derivative(residual, self.w, ufl.TrialFunction(self.W))
         self.F_form, self.J_form = compat.form(residual), compat.form(jacobian)
         self.bcs = self._boundary_conditions(facet_tags, cell_tags)
+        if self.contact is not None:
+            clamp = compat.facets_with_tag(facet_tags, groups.CLAMP)
+            self._clamp_rows = [compat.owned_component_dofs(self.W, self.mesh, clamp, i, self.has_parts)
+                                for i in (0, 1)]
+            self._reaction_b = compat.create_vector(self.F_form)
 
         self.tip_area = compat.assemble_scalar(compat.form(1.0 * self.ds_tip), self.comm)
         self.tip_forms = [compat.form(u[i] * self.ds_tip) for i in range(3)]
@@ -258,6 +263,25 @@ class DEAProblem:
         if self.contact is None:
             return 0.0, 0.0
         return (compat.assemble_scalar(self.Fx_form, self.comm), compat.assemble_scalar(self.Fy_form, self.comm))
+
+    def obstacle_forces_from_reaction(self) -> tuple[float, float]:
+        """(Fx, Fy) of the DEA on the obstacle from the clamp reaction, not from the contact
+        integral: the DEA is quasi-static, so the obstacle's force on it balances the clamp
+        reaction r and its weight W. With the residual R assembled on every row (Dirichlet
+        rows not zeroed), r is the sum of R over the clamp rows, and
+
+            Fx = r_x,        Fy = W − r_y       (Fy positive downward)
+
+        up to the sum of R over the free rows, i.e. the Newton residual. One vector assembly.
+        """
+        if self.contact is None:
+            return 0.0, 0.0
+        b = self._reaction_b
+        compat.assemble_vector_free(b, self.F_form)
+        rx, ry = (compat.sum_entries(b, rows, self.comm) for rows in self._clamp_rows)
+        weight = (self.scene.dea.density_kg_m3 * self.scene.gravity_m_s2 * float(self.gravity_scale.value)
+                  * self.volume) if self.has_gravity else 0.0
+        return rx, weight - ry
 
     def tip_displacement(self) -> np.ndarray:
         """Mean displacement of the free-end face (m)."""

@@ -8,10 +8,11 @@ from pathlib import Path
 import ufl
 from mpi4py import MPI
 
-from fem_solver import compat, dataset
-from fem_solver.problem import DEAProblem
-from fem_solver.stepping import Stepper, coin_travel
-from meshing.build import write_mesh
+from deapull import dataset, provenance
+from deapull.fem_solver import compat
+from deapull.fem_solver.problem import DEAProblem
+from deapull.fem_solver.stepping import Stepper, as_arrays, coin_motion, coin_travel
+from deapull.meshing.build import write_mesh
 
 log = logging.getLogger(__name__)
 
@@ -87,14 +88,15 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         "mesh_cell_type": scene.mesh.cell, "mesh_order": scene.mesh.order, "mesh_level": scene.mesh.level,
         "mesh_min_quality": summary["min_quality_detj_ratio"],
         "coin_volume_rel_error": summary.get("coin_volume_rel_error", ""),
-        "mpi_ranks": comm.size, "git_commit": dataset.git_commit(), "wall_time_total_s": wall,
-        "coin_travel_m": coin_travel(records), "steps": len(records),
-        **dataset.package_versions(),
+        "mpi_ranks": comm.size, "git_commit": provenance.git_commit(), "wall_time_total_s": wall,
+        "coin_travel_m": coin_travel(records), "coin_motion": coin_motion(records), "steps": len(records),
+        "load_protocol": scene.load.protocol,
+        **provenance.package_versions(),
     }
     path = out_dir / f"{name}.nc"
     if comm.rank == 0:
-        dataset.write_atomic(dataset.to_dataset(records, attrs), path)
+        dataset.write(dataset.build(as_arrays(records), attrs), path)
     comm.barrier()
     log.info("%s: %d points, coin travel %.3f mm, %.1f s -> %s", name, len(records),
-             -coin_travel(records) * 1e3, wall, path)
+             coin_travel(records) * 1e3, wall, path)
     return path

@@ -1,14 +1,36 @@
-"""Adaptive time stepping over the voltage protocol, with the coin coupled in every step.
+"""Time stepping of one scene, with the coin coupled in every step.
+
+The caller owns the voltage and the step size::
+
+    stepper = Stepper(problem, coin_mass_kg)
+    stepper.start()                      # placement under gravity at t = 0, the first record
+    rec = stepper.advance(V_end, dt)     # one step t -> t + dt, V linear up to V_end
+    ...
+
+and :meth:`Stepper.run` is the loop over :meth:`Stepper.advance` for a protocol V(t)
+(the scene's ramp by default), with adaptive step control.
 
 Each step: predict the state by linear extrapolation, then iterate DEA solve ↔ coin
 update (staggered, secant-accelerated on the coin position) until the coin position
 changes by less than ``solver.coupling_tol_m``. The coupling is staggered rather than
 monolithic because the coin is one scalar unknown with a non-smooth (stick/slip) law:
-dolfinx 0.5 has no global real unknowns, and the fixed point contracts by
-Δt²·k/m ≈ 1e-2 (k the DEA tip stiffness), so it converges in a few cheap, warm-started
-solves. A failed solve is restored, the step cut by ``time.cutback`` and retried; after
-``time.max_cutbacks`` (or below ``time.dt_min_s``) :class:`SolveFailed` is raised with
-the time, PETSc's reason and the last good step — nothing is recorded from a failed solve.
+dolfinx 0.5 has no global real unknowns. The coin position X maps to X ↦ x_n + Δt u(X)
+with slope −Δt² k / m (k ≈ 213 N/m the DEA tip's tangential stiffness on the shipped mesh,
+m = 1.36 g): ≈ 0.30 at the largest step, 1/720 s, so even the plain fixed point contracts;
+the secant on G(X) = x(X) − X converges in 1 (stick) to 2–3 (slip) warm-started solves
+(docs/physics.md, "The coin and the coupling").
+
+A failed solve is restored and the step retried as ``1 / time.cutback`` (rounded up) equal
+sub-steps, the voltage interpolated linearly between the step's start and end values, so
+the step still ends at t + Δt and V_end; a failing sub-step is cut again. After more than
+``time.max_cutbacks`` cut-backs in a row from one accepted state, or below
+``time.dt_min_s``, the state is rolled back to the last record and :class:`SolveFailed`
+raised with the time, the voltage and PETSc's reason — nothing is recorded from a failed
+solve.
+
+Every accepted (sub-)step also checks the coin's momentum balance with the DEA's force
+taken from the clamp reaction, not from the contact integral the coupling used
+(``force_balance_residual_N``; :meth:`DEAProblem.obstacle_forces_from_reaction`).
 """
 from __future__ import annotations
 
@@ -16,21 +38,30 @@ import logging
 import math
 import time as _time
 from dataclasses import asdict, dataclass
+from typing import Callable
 
 import numpy as np
 from tqdm import tqdm
 
-from fem_solver.coin import CoinState, coulomb_step, force_balance_residual
+from deapull import protocol as protocols
+from deapull.protocol import Protocol
+from deapull.fem_solver.coin import CoinState, coulomb_step, force_balance_residual
 
 log = logging.getLogger(__name__)
 
 
 class SolveFailed(RuntimeError):
-    """The solve could not continue; carries where and why."""
+    """The solve could not continue; carries where and why.
 
-    def __init__(self, t: float, voltage: float, reason: str, last_good_step: int, records):
+    ``records`` are the accepted steps (the stepper is back at the last of them);
+    ``substeps`` the sub-steps that the failed step had accepted before it gave up, rolled
+    back since, each as a record of its own (t, V, dt of the sub-step) — for diagnosis,
+    e.g. how far the cut-backs crawled toward a limit point.
+    """
+
+    def __init__(self, t: float, voltage: float, reason: str, last_good_step: int, records, substeps=()):
         self.t, self.voltage, self.reason, self.last_good_step = t, voltage, reason, last_good_step
-        self.records = records
+        self.records, self.substeps = records, list(substeps)
         super().__init__(f"solve failed at t = {t:.6g} s (V = {voltage:.4g} V): {reason}; "
                          f"last good step {last_good_step}")
 
@@ -61,18 +92,27 @@ class StepRecord:
 PLACEMENT_MIN_STEP = 1e-3  # smallest gravity-continuation step of the initial placement
 
 
-def voltage_at(load, t: float) -> float:
-    """V(t) of the scene's protocol (ramp: V_max · min(t / ramp_time, 1))."""
-    return load.voltage_max_V * min(t / load.ramp_time_s, 1.0)
+def scene_protocol(scene) -> Protocol:
+    """The scene's voltage protocol (:mod:`deapull.protocol`): a callable V(t) with its kinks."""
+    return protocols.from_load(scene.load)
 
 
 class Stepper:
-    """Runs one scene's problem over [0, end] and collects one record per accepted step.
+    """Steps one scene's problem and collects one record per accepted step.
 
     Parameters
     ----------
     problem : fem_solver.problem.DEAProblem
     coin_mass_kg : mass of the coin (None when the scene has no coin)
+    progress : show a progress bar in :meth:`run` (rank 0 only)
+    on_step : called as ``on_step(index, t)`` after each accepted step, before its record is kept
+
+    Attributes
+    ----------
+    t, V : time and voltage of the last record
+    coin : the coin's state at the last record
+    records : the records so far
+    substep_dt : size of the last accepted (sub-)step; below the step's size after a cut-back
     """
 
     def __init__(self, problem, coin_mass_kg=None, progress: bool = True, on_step=None):
@@ -80,14 +120,17 @@ class Stepper:
         self.mass = coin_mass_kg
         self.coin = CoinState()
         self.records: list[StepRecord] = []
-        self.on_step = on_step  # called as on_step(index, t) after each accepted step
+        self.on_step = on_step
         self.progress = progress and problem.comm.rank == 0
         self.coupling_slope = -1.0  # dG/dX of the coin-position fixed point, refined by secants
+        self.t, self.V = 0.0, math.nan
+        self.substep_dt: float | None = None   # also the predictor's last interval
+        self.started = False
 
-    # --- one step ------------------------------------------------------------------
+    # --- one coupled solve ------------------------------------------------------------
 
     def _coupled_solve(self, V: float, dt: float):
-        """DEA ↔ coin iteration for one step; returns (ok, reason, newton its, coupling its, coin)."""
+        """DEA ↔ coin iteration for one step; returns (ok, reason, newton its, coupling its, coin, forces)."""
         p, sc = self.p, self.scene
         if sc.coin is None:
             p.set_load(V, 0.0, dt)
@@ -116,17 +159,25 @@ class Stepper:
             X = X - G / self.coupling_slope
         return False, "COUPLING_NOT_CONVERGED", its, sc.solver.coupling_max_it, None, None
 
-    def _record(self, t, V, dt, its, coupling_its, cutbacks, wall, prev_coin, forces):
-        """Append the record of the step just solved (forces from the solve, before accept())."""
-        p, sc = self.p, self.scene
+    def _balance_residual(self, prev: CoinState, new: CoinState, dt: float) -> float:
+        """The coin's momentum balance with the DEA's force from the clamp reaction (N).
+
+        Independent of the contact integral that the coupling handed to the coin: it is the
+        force the quasi-static DEA actually exerts (minus its other external forces), so it
+        checks the DEA's equilibrium and the coupling's hand-over together. Must be called
+        before ``problem.accept()`` (the friction term needs the step's start state).
+        """
+        sc = self.scene
+        if sc.coin is None:
+            return 0.0
+        Fx, Fy = self.p.obstacle_forces_from_reaction()
+        return force_balance_residual(prev, new, Fx, Fy, dt, self.mass, sc.coin.mu_b, sc.gravity_m_s2)
+
+    def _record(self, t, V, dt, its, coupling_its, cutbacks, wall, forces, residual) -> StepRecord:
+        """The record of the state just solved (forces from the solve, before accept())."""
+        p = self.p
         Fx, Fy = forces
         tip = p.tip_displacement()
-        residual = 0.0
-        if sc.coin is not None and dt > 0:
-            residual = force_balance_residual(prev_coin, self.coin, Fx, Fy, dt, self.mass, sc.coin.mu_b,
-                                              sc.gravity_m_s2)
-        if self.on_step is not None:
-            self.on_step(len(self.records), t)
         rec = StepRecord(t=t, x=self.coin.x, u=self.coin.u, V=V, dt=dt, Fx=Fx, Fy=Fy, newton_iterations=its,
                          coupling_iterations=coupling_its, cutbacks=cutbacks, penetration_m=p.max_penetration(),
                          stick=int(self.coin.stick), force_balance_residual_N=residual, tip_ux=tip[0],
@@ -135,75 +186,198 @@ class Stepper:
                          wall_time_s=wall)
         values = np.array([v for v in asdict(rec).values()], dtype=float)
         if not np.all(np.isfinite(values)):
-            raise SolveFailed(t, V, "NON_FINITE_OUTPUT", len(self.records) - 1, self.records)
-        self.records.append(rec)
+            return None
+        return rec
 
-    def _initial(self):
-        """Equilibrium at t = 0 (gravity, V(0)); the first record.
+    def _keep(self, rec: StepRecord) -> StepRecord:
+        if self.on_step is not None:
+            self.on_step(len(self.records), rec.t)
+        self.records.append(rec)
+        self.t, self.V = rec.t, rec.V
+        return rec
+
+    # --- the API ------------------------------------------------------------------------
+
+    def start(self, V0: float | None = None) -> StepRecord:
+        """Equilibrium at t = 0 under gravity and ``V0`` (default: the scene's protocol at 0);
+        the first record.
 
         The DEA is placed on the obstacle without friction: friction acts on slip during a
-        step, and placement is not a step of the protocol.
+        step, and placement is not a step of the protocol. Gravity is applied by
+        continuation; a continuation step below :data:`PLACEMENT_MIN_STEP` raises
+        :class:`SolveFailed`.
         """
+        if self.started:
+            raise RuntimeError("Stepper.start() was already called")
         start = _time.perf_counter()
-        V = voltage_at(self.scene.load, 0.0)
+        V = scene_protocol(self.scene)(0.0) if V0 is None else float(V0)
         self.p.enable_friction(False)
+        dt = self.scene.time.dt_initial_s
+
+        def gravity(scale):
+            self.p.gravity_scale.value = scale
+            return self._coupled_solve(0.0 if V > 0 else V, dt)
+
+        its, cits, forces = self._continuation("placement under gravity", gravity, V)
+        if V > 0:   # a protocol that starts actuated (release): then raise the voltage, still frictionless
+            k_its, cits, forces = self._continuation("placement at the initial voltage",
+                                                     lambda scale: self._coupled_solve(scale * V, dt), V)
+            its += k_its
+        self.coin = CoinState()
+        residual = self._balance_residual(self.coin, self.coin, 0.0)   # as solved: without friction
+        self.p.enable_friction(True)
+        rec = self._record(0.0, V, 0.0, its, cits, 0, _time.perf_counter() - start, forces, residual)
+        if rec is None:
+            raise SolveFailed(0.0, V, "NON_FINITE_OUTPUT", -1, self.records)
+        self.p.accept()
+        self.p.accept()  # no history yet: the predictor starts from a constant state
+        self.started = True
+        return self._keep(rec)
+
+    def advance(self, V_end: float, dt: float) -> StepRecord:
+        """One step from the current time t to t + dt, the voltage going linearly to ``V_end``.
+
+        The coupled DEA–coin solve; when it fails, the state is restored and the rest of the
+        step is taken as equal sub-steps ``time.cutback`` times shorter (V interpolated
+        linearly), cut again on each failure; the record's iteration counts are summed over
+        the accepted sub-steps, ``cutbacks`` counts every cut, ``force_balance_residual_N``
+        is the largest of the sub-steps'.
+
+        Raises
+        ------
+        SolveFailed
+            after more than ``time.max_cutbacks`` cut-backs in a row from one accepted state
+            (as the loop before the API allowed per step), or below ``time.dt_min_s``, with
+            the end time and voltage of the failed attempt; the state is rolled back to the
+            last record and nothing is recorded (the sub-steps it had accepted are on the
+            exception, ``substeps``).
+        """
+        if not self.started:
+            raise RuntimeError("call Stepper.start() before Stepper.advance()")
+        V_end, dt = float(V_end), float(dt)
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"time step must be a positive number, got {dt!r}")
+        if not math.isfinite(V_end):
+            raise ValueError(f"voltage must be finite, got {V_end!r}")
+        ts = self.scene.time
+        wall0 = _time.perf_counter()
+        t0, V0, coin0, dt_prev0 = self.t, self.V, self.coin, self.substep_dt
+        saved = None                          # the accepted arrays, copied at the first cut-back
+        substeps = []                         # records of the accepted sub-steps, for a SolveFailed
+        its = cits = cutbacks = fails = 0     # cut-backs: in the step; fails: in a row at one point
+        residual = 0.0
+        elapsed, h, n_left = 0.0, dt, 1      # time done, sub-step size, sub-steps left
+        while True:
+            last = n_left == 1
+            step = dt - elapsed if last and elapsed > 0 else h
+            t_end = t0 + dt if last else t0 + elapsed + step
+            V = V_end if last else V0 + (V_end - V0) * ((elapsed + step) / dt)
+            self.p.predict(0.0 if self.substep_dt is None else step / self.substep_dt)
+            ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step)
+            if not ok:
+                self.p.restore()
+                if saved is None:
+                    saved = self._save()
+                cutbacks, fails = cutbacks + 1, fails + 1
+                log.info("t = %.6g s, dt = %.3g s: %s after %d Newton iterations; cutting back",
+                         t_end - step, step, reason, k_its)
+                h = step * ts.cutback
+                if fails > ts.max_cutbacks or h < ts.dt_min_s:
+                    self._rollback(saved, coin0, dt_prev0)
+                    raise SolveFailed(t_end, V, reason, len(self.records) - 1, self.records, substeps)
+                remaining = dt - elapsed
+                n_left = max(1, math.ceil(remaining / h * (1 - 1e-12)))
+                h = remaining / n_left
+                continue
+            its, cits, fails = its + k_its, cits + k_cits, 0
+            prev, self.coin = self.coin, coin
+            balance = self._balance_residual(prev, coin, step)
+            residual = max(residual, balance)
+            self.substep_dt = step
+            if last:
+                break
+            sub = self._record(t_end, V, step, k_its, k_cits, cutbacks, _time.perf_counter() - wall0, forces, balance)
+            substeps += [sub] if sub is not None else []
+            self.p.accept()
+            elapsed += step
+            n_left -= 1
+        rec = self._record(t0 + dt, V_end, dt, its, cits, cutbacks, _time.perf_counter() - wall0, forces,
+                           residual)
+        if rec is None:
+            self._rollback(saved, coin0, dt_prev0)
+            raise SolveFailed(t0 + dt, V_end, "NON_FINITE_OUTPUT", len(self.records) - 1, self.records)
+        self.p.accept()
+        return self._keep(rec)
+
+    def _continuation(self, what: str, solve_at, V: float):
+        """Solve ``solve_at(scale)`` for scale 0 → 1 in growing steps, cut by 4 on failure.
+
+        Returns (Newton iterations, coupling iterations of the last solve, its forces);
+        raises :class:`SolveFailed` once a step falls below :data:`PLACEMENT_MIN_STEP`.
+        """
         its, done, step = 0, 0.0, 1.0
         good = self.p.w.x.array.copy()
         while done < 1.0:
             scale = min(1.0, done + step)
-            self.p.gravity_scale.value = scale
-            ok, reason, k_its, cits, coin, forces = self._coupled_solve(V, self.scene.time.dt_initial_s)
+            ok, reason, k_its, cits, coin, forces = solve_at(scale)
             its += k_its
             if ok:
                 done, step, good[:] = scale, step * 1.5, self.p.w.x.array
                 continue
             self.p.w.x.array[:] = good
             step /= 4
-            log.info("placement under gravity x %.4g: %s; continuation step cut to %.3g", scale, reason, step)
+            log.info("%s x %.4g: %s; continuation step cut to %.3g", what, scale, reason, step)
             if step < PLACEMENT_MIN_STEP:
-                raise SolveFailed(0.0, V, f"placement under gravity x {scale:g}: {reason}", -1, self.records)
-        self.p.enable_friction(True)
-        self.coin = CoinState()
-        self._record(0.0, V, 0.0, its, cits, 0, _time.perf_counter() - start, self.coin, forces)
-        self.p.accept()
-        self.p.accept()  # no history yet: the predictor starts from a constant state
+                raise SolveFailed(0.0, V, f"{what} x {scale:g}: {reason}", -1, self.records)
+        return its, cits, forces
 
-    # --- the loop ------------------------------------------------------------------
+    def _save(self):
+        """Copies of the last accepted state's arrays (before any sub-step is accepted)."""
+        p = self.p
+        return p.w_old.x.array.copy(), p.w_older.x.array.copy(), float(p.X_old.value)
 
-    def run(self) -> list[StepRecord]:
+    def _rollback(self, saved, coin: CoinState, dt_prev) -> None:
+        """Back to the state of the last record."""
+        p = self.p
+        if saved is not None:
+            p.w_old.x.array[:], p.w_older.x.array[:] = saved[0], saved[1]
+            p.X_old.value = saved[2]
+        p.restore()
+        self.coin, self.substep_dt = coin, dt_prev
+
+    def run(self, protocol: Callable[[float], float] | None = None, end_time_s: float | None = None
+            ) -> list[StepRecord]:
+        """:meth:`start`, then :meth:`advance` over [0, end] with V = ``protocol(t)``.
+
+        ``protocol`` defaults to the scene's (:func:`scene_protocol`), ``end_time_s`` to
+        ``load.end_time_s``. A protocol with ``kinks()`` (:class:`deapull.protocol.Protocol`)
+        gets a step that ends on each kink. Step control: Δt = min(Δt, ``time.dt_max_s``, end − t),
+        starting from ``time.dt_initial_s``; ×``time.growth`` after an easy step (no
+        cut-back and at most 4 Newton iterations per coupling iteration); after a cut-back
+        the next step starts from the sub-step size that worked.
+        """
         sc = self.scene
-        ts, load = sc.time, sc.load
-        self._initial()
-        t, dt, dt_prev = 0.0, ts.dt_initial_s, None
-        bar = tqdm(total=load.end_time_s, disable=not self.progress, unit="s", desc=sc.setup or sc.scene.name,
+        ts = sc.time
+        protocol = scene_protocol(sc) if protocol is None else protocol
+        end = sc.load.end_time_s if end_time_s is None else float(end_time_s)
+        kinks = [k for k in getattr(protocol, "kinks", lambda: [])() if k < end]
+        self.start(protocol(0.0))
+        dt = ts.dt_initial_s
+        bar = tqdm(total=end, disable=not self.progress, unit="s", desc=sc.setup or sc.scene.name,
                    bar_format="{desc}: {percentage:3.0f}%|{bar}| t={n:.3f}/{total:.3f} s [{elapsed}<{remaining}]")
-        while t < load.end_time_s * (1 - 1e-12):
-            dt = min(dt, ts.dt_max_s, load.end_time_s - t)
-            start = _time.perf_counter()
-            cutbacks = 0
-            while True:
-                self.p.predict(0.0 if dt_prev is None else dt / dt_prev)
-                V = voltage_at(load, t + dt)
-                ok, reason, its, cits, coin, forces = self._coupled_solve(V, dt)
-                if ok:
-                    break
-                self.p.restore()
-                cutbacks += 1
-                log.info("t = %.6g s, dt = %.3g s: %s after %d Newton iterations; cutting back",
-                         t, dt, reason, its)
-                dt *= ts.cutback
-                if cutbacks > ts.max_cutbacks or dt < ts.dt_min_s:
-                    bar.close()
-                    raise SolveFailed(t + dt / ts.cutback, V, reason, len(self.records) - 1, self.records)
-            prev, self.coin = self.coin, coin
-            t += dt
-            self._record(t, V, dt, its, cits, cutbacks, _time.perf_counter() - start, prev, forces)
-            self.p.accept()
-            bar.update(dt)
-            dt_prev = dt
-            if cutbacks == 0 and its <= 4 * cits:
-                dt *= ts.growth
-        bar.close()
+        try:
+            while self.t < end * (1 - 1e-12):
+                dt = min(dt, ts.dt_max_s, end - self.t)
+                ahead = [k - self.t for k in kinks if self.t * (1 + 1e-12) < k < self.t + dt]
+                step = min([dt, *ahead])            # land on a kink of V(t) (a hold, a reversal)
+                rec = self.advance(protocol(self.t + step), step)
+                bar.update(step)
+                if rec.cutbacks:
+                    dt = self.substep_dt
+                elif rec.newton_iterations <= 4 * rec.coupling_iterations:
+                    dt *= ts.growth
+        finally:
+            bar.close()
         return self.records
 
 
@@ -214,4 +388,17 @@ def as_arrays(records) -> dict[str, np.ndarray]:
 
 
 def coin_travel(records) -> float:
-    return float(min((r.x for r in records), default=0.0)) if records else math.nan
+    """The coin's largest |x| (m; it starts at x = 0, so its largest distance from the start; NaN
+    without records)."""
+    return float(max(abs(r.x) for r in records)) if records else math.nan
+
+
+def coin_motion(records) -> str:
+    """Which way the coin went: toward -x (away from the clamp), toward +x (toward it), or not."""
+    if not records:
+        return "none"
+    x = [r.x for r in records]
+    far = max(x, key=abs)
+    if abs(far) < 1e-9:
+        return "none"
+    return "toward -x (away from the clamp)" if far < 0 else "toward +x (toward the clamp)"

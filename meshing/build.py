@@ -10,19 +10,17 @@ so the curved coin rim is represented and its mesh volume is within 0.5 % of πr
 """
 from __future__ import annotations
 
-import json
 import math
-import os
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
 import gmsh
 import numpy as np
 
-from meshing import groups
-from meshing.layout import layout
-from workflows.scene import Scene
+from deapull.io import atomic_write, write_json
+from deapull.meshing import groups
+from deapull.meshing.layout import layout
+from deapull.scene import Scene
 
 _TOL = 1e-6  # OCC pads bounding boxes by ~1e-7 m
 
@@ -181,7 +179,7 @@ def summarise() -> dict:
     return out
 
 
-def write_mesh(scene: Scene, out_dir: str | os.PathLike) -> tuple[Path, dict]:
+def write_mesh(scene: Scene, out_dir: str | Path) -> tuple[Path, dict]:
     """Mesh the scene into ``out_dir/mesh.msh`` and ``out_dir/mesh.json`` (atomically).
 
     Returns the path of the ``.msh`` file and the summary.
@@ -198,18 +196,6 @@ def write_mesh(scene: Scene, out_dir: str | os.PathLike) -> tuple[Path, dict]:
             exact = math.pi * c.radius_m ** 2 * c.height_m
             summary["coin_volume_exact_m3"] = exact
             summary["coin_volume_rel_error"] = summary["groups"]["coin"]["volume_m3"] / exact - 1.0
-        fd, tmp = tempfile.mkstemp(suffix=".msh", dir=out)
-        os.close(fd)
-        gmsh.write(tmp)
-    msh = out / "mesh.msh"
-    os.replace(tmp, msh)
-    atomic_write_text(out / "mesh.json", json.dumps(summary, indent=2))
+        msh = atomic_write(out / "mesh.msh", gmsh.write, suffix=".msh")
+    write_json(out / "mesh.json", summary, indent=2)
     return msh, summary
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write text to ``path`` through a temp file and a rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)

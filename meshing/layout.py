@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
-from workflows.scene import Scene
+from deapull.scene import Scene
 
 
 @dataclass(frozen=True)

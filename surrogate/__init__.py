@@ -1,9 +1,12 @@
 """Surrogate stage: physics-informed f = d∘m and black-box baselines trained on the FEM's datasets.
 
-Modules, one idea each: :mod:`~surrogate.data` (datasets → transitions),
-:mod:`~surrogate.models` (f with the paper's law, the tip-contact f-coulomb, NN, LSTM),
+Modules, one idea each: :mod:`~surrogate.data` (datasets → transitions, through the
+dataset contract :mod:`deapull.dataset`), :mod:`~surrogate.phi` (φ, the coin a physics
+model simulates, as a value), :mod:`~surrogate.models` (one module per kind behind a
+registry: f with the paper's law, the tip-contact f-coulomb, NN, LSTM),
 :mod:`~surrogate.train` (Algorithm 1), :mod:`~surrogate.store` (model folders),
 :mod:`~surrogate.rollout` and :mod:`~surrogate.native` (recursive rollouts),
-:mod:`~surrogate.evaluate` (errors against the FEM), :mod:`~surrogate.experiments`
-(the paper's six sets) and :mod:`~surrogate.cli` (``deapull train|evaluate|experiments``).
+:mod:`~surrogate.evaluate` (errors against the FEM) and :mod:`~surrogate.experiments`
+(the paper's six sets). The commands (``deapull train|evaluate|experiments``) live in
+:mod:`deapull.workflows.cli_surrogate`.
 """

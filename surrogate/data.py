@@ -19,12 +19,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import xarray as xr
 
-from workflows.errors import InputError
+from deapull import dataset
+from deapull.dataset import DatasetError   # re-exported: the surrogate's readers raise it
+from deapull.errors import InputError
+from deapull.surrogate.phi import Phi
 
-#: variables the surrogate needs, with the units the dataset must declare
-UNITS = {"t": "s", "x": "m", "u": "m/s", "V": "V", "dt": "s", "Fx": "N", "Fy": "N"}
+#: variables the surrogate reads (names and units: :data:`deapull.dataset.VARIABLES`)
+VARIABLES = ("t", "x", "u", "V", "dt", "Fx", "Fy")
 #: global attributes the surrogate needs (positive numbers)
 ATTRS = ("coin_mass_kg", "coin_mu_b", "gravity_m_s2")
 #: attributes that only the tip-contact model f-coulomb needs (read when present, NaN if not):
@@ -36,9 +38,8 @@ THRESHOLD_DISPLACEMENT_M = -1e-5
 CONTACT_LOSS_FRACTION = 1e-3
 MIN_STEPS = 10
 
-
-class DatasetError(InputError):
-    """A dataset the surrogate cannot use; the message names the file and the variable."""
+__all__ = ["DatasetError", "SetupData", "Transitions", "load_setup", "load_sweep", "parse_setups",
+           "require_tip_contact", "transitions"]
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,7 @@ class SetupData:
 
 
 def load_setup(path: str | Path) -> SetupData:
-    """Read and check one dataset file.
+    """Read and check one dataset file through the dataset contract (:func:`deapull.dataset.read`).
 
     Parameters
     ----------
@@ -151,62 +152,24 @@ def load_setup(path: str | Path) -> SetupData:
     Raises
     ------
     DatasetError
-        When the file is missing or unreadable, a variable is missing, declares other
-        units than :data:`UNITS`, holds a non-finite value or does not run along ``step``,
-        an attribute is missing or not a positive number, the run is not marked complete,
-        or the time steps are not positive.
+        When the file is missing or unreadable, a variable of :data:`VARIABLES` is missing,
+        declares other units than the contract's, holds a non-finite value or does not run
+        along ``step``, an attribute of :data:`ATTRS` is missing or not a positive number
+        (one of :data:`OPTIONAL_ATTRS`: present but negative), the run is not marked
+        complete or has fewer than :data:`MIN_STEPS` points, or a time step is not positive.
+        The message names the file and the variable or attribute.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: no such dataset file")
-    try:
-        with xr.open_dataset(path, engine="h5netcdf") as ds:
-            ds.load()
-    except (OSError, ValueError) as err:
-        raise DatasetError(f"{path}: cannot read as netCDF/HDF5 ({err})") from err
-    if int(ds.attrs.get("complete", 0)) != 1:
-        raise DatasetError(f"{path}: attribute 'complete' is not 1: the FEM run did not finish")
-    arrays = {name: _variable(ds, path, name, units) for name, units in UNITS.items()}
-    if len(arrays["t"]) < MIN_STEPS:
-        raise DatasetError(f"{path}: variable 't': {len(arrays['t'])} steps, need at least {MIN_STEPS}")
-    if np.any(arrays["dt"][1:] <= 0):
-        bad = int(np.flatnonzero(arrays["dt"][1:] <= 0)[0]) + 1
-        raise DatasetError(f"{path}: variable 'dt': non-positive time step {arrays['dt'][bad]:g} s at step {bad}")
-    attrs = {name: _attribute(ds, path, name) for name in ATTRS}
-    optional = {field: _attribute(ds, path, name, allow_zero=True) if name in ds.attrs else float("nan")
+    run = dataset.read(path, VARIABLES, min_steps=MIN_STEPS)
+    columns = run.columns
+    dt = columns["dt"]
+    if np.any(dt[1:] <= 0):
+        bad = int(np.flatnonzero(dt[1:] <= 0)[0]) + 1
+        raise DatasetError(f"{run.path}: variable 'dt': non-positive time step {dt[bad]:g} s at step {bad}")
+    optional = {field: run.number(name, positive=False, default=float("nan"))
                 for name, field in OPTIONAL_ATTRS.items()}
-    return SetupData(name=path.stem, path=path, **arrays, coin_mass_kg=attrs["coin_mass_kg"],
-                     mu_b=attrs["coin_mu_b"], gravity_m_s2=attrs["gravity_m_s2"],
-                     wall_time_s=float(ds.attrs.get("wall_time_total_s", float("nan"))), **optional)
-
-
-def _variable(ds: xr.Dataset, path: Path, name: str, units: str) -> np.ndarray:
-    if name not in ds.variables:
-        raise DatasetError(f"{path}: variable {name!r} is missing (need {', '.join(UNITS)})")
-    var = ds[name]
-    if var.dims != ("step",):
-        raise DatasetError(f"{path}: variable {name!r} has dimensions {var.dims}, expected ('step',)")
-    found = var.attrs.get("units")
-    if found != units:
-        raise DatasetError(f"{path}: variable {name!r} has units {found!r}, expected {units!r}")
-    values = np.asarray(var.values, dtype=np.float64)
-    if not np.all(np.isfinite(values)):
-        bad = int(np.flatnonzero(~np.isfinite(values))[0])
-        raise DatasetError(f"{path}: variable {name!r} has a non-finite value ({values[bad]}) at step {bad}")
-    return values
-
-
-def _attribute(ds: xr.Dataset, path: Path, name: str, allow_zero: bool = False) -> float:
-    if name not in ds.attrs:
-        raise DatasetError(f"{path}: attribute {name!r} is missing")
-    try:
-        value = float(ds.attrs[name])
-    except (TypeError, ValueError):
-        raise DatasetError(f"{path}: attribute {name!r} = {ds.attrs[name]!r} is not a number") from None
-    if not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        allowed = "a non-negative" if allow_zero else "a positive"
-        raise DatasetError(f"{path}: attribute {name!r} = {value!r} must be {allowed} number")
-    return value
+    return SetupData(name=run.path.stem, path=run.path, **columns, coin_mass_kg=run.number("coin_mass_kg"),
+                     mu_b=run.number("coin_mu_b"), gravity_m_s2=run.number("gravity_m_s2"),
+                     wall_time_s=float(run.attrs.get("wall_time_total_s", float("nan"))), **optional)
 
 
 def require_tip_contact(data: SetupData) -> None:
@@ -244,10 +207,9 @@ class Transitions:
     ----------
     s, a, z, s_next : torch.Tensor
         (N, 2) each: state (x, u), action (V, Δt), forces (Fx, Fy), next state.
-    phi : torch.Tensor
-        (N, 4): the setup's coin mass (kg), μ_b, threshold voltage V^T (V; NaN where
-        the dynamics does not need it) and μ_t (NaN where unknown) — the dynamics'
-        parameters for that row.
+    phi : Phi
+        φ of each row's setup, fields of shape (N,): coin mass (kg), μ_b, μ_t and the
+        threshold voltage V^T (V) — NaN where unknown or not needed.
     window : torch.Tensor
         (N, W, 4): the last W (s, a) pairs up to and including (s_t, a_t), padded at the
         start of each run by repeating its first pair (input of the LSTM baseline).
@@ -260,7 +222,7 @@ class Transitions:
     a: torch.Tensor
     z: torch.Tensor
     s_next: torch.Tensor
-    phi: torch.Tensor
+    phi: Phi
     window: torch.Tensor
     v_prev: torch.Tensor
 
@@ -274,28 +236,29 @@ class Transitions:
         return Transitions(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
 
 
-def transitions(setups: list[SetupData], window: int, v_thresholds: dict[str, float] | None = None,
+def transitions(setups: list[SetupData], window: int, phis: dict[str, Phi] | None = None,
                 dtype: torch.dtype = torch.float32) -> Transitions:
-    """Cut runs into transitions (s_t, a_t, z_t, s_{t+1}) with their dynamics parameters.
+    """Cut runs into transitions (s_t, a_t, z_t, s_{t+1}) with their coin's φ.
 
     Parameters
     ----------
     setups : list of SetupData
     window : int
         History length of :attr:`Transitions.window` (1 for models without memory).
-    v_thresholds : dict, optional
-        V^T per setup name; NaN for setups not in it.
+    phis : dict, optional
+        φ per setup name (e.g. ``kind_class.phi_of(data)``); a setup not in it gets
+        :meth:`Phi.of` (no V^T).
     dtype : torch.dtype
     """
-    parts = []
+    parts, row_phis = [], []
     for data in setups:
         s, a, z = data.states(), data.actions(), data.forces()
-        n = len(a)
-        vt = (v_thresholds or {}).get(data.name, float("nan"))
-        phi = np.tile([data.coin_mass_kg, data.mu_b, vt, data.mu_t], (n, 1))
+        phi = (phis or {}).get(data.name)
+        row_phis.append(Phi.of(data) if phi is None else phi)
         sa = np.concatenate([s[:-1], a], axis=1)
         padded = np.concatenate([np.repeat(sa[:1], window - 1, axis=0), sa], axis=0)
         win = np.lib.stride_tricks.sliding_window_view(padded, (window, 4))[:, 0]
-        parts.append((s[:-1], a, z, s[1:], phi, win, data.V[:-1]))
-    cols = [np.concatenate(c) for c in zip(*parts)]
-    return Transitions(*(torch.as_tensor(c, dtype=dtype) for c in cols))
+        parts.append((s[:-1], a, z, s[1:], win, data.V[:-1]))
+    s, a, z, s_next, win, v_prev = (torch.as_tensor(np.concatenate(c), dtype=dtype) for c in zip(*parts))
+    phi = Phi.rows(row_phis, [len(p[1]) for p in parts], dtype=dtype)
+    return Transitions(s, a, z, s_next, phi, win, v_prev)

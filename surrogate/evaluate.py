@@ -1,8 +1,9 @@
 """Error of a 1 s rollout against the FEM on a test setup (paper §VI-A, Table II).
 
 The model is rolled out recursively from the FEM's initial state under the FEM's actions;
-physics models simulate the test coin (its m_c and μ_b; for the paper's law its V^T from
-the test run, as the paper does; for the tip-contact model its μ_t). Errors are over the rollout's T predicted steps.
+physics models simulate the test coin, φ = ``model.phi_of(data)`` (its m_c and μ_b; for
+the paper's law its V^T from the test run, as the paper does; for the tip-contact model
+its μ_t). Errors are over the rollout's T predicted steps.
 """
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from surrogate.data import SetupData, require_tip_contact
-from surrogate.models import PhysicsModel, Surrogate, TipContactModel
-from surrogate.rollout import rollout
+from deapull.surrogate.data import SetupData
+from deapull.surrogate.models import Surrogate
+from deapull.surrogate.phi import Phi
+from deapull.surrogate.rollout import rollout
 
 #: a rollout that leaves the FEM's travel by this factor (or turns non-finite) has diverged
 DIVERGED_FACTOR = 10.0
@@ -56,24 +58,17 @@ class Evaluation:
         return np.abs(self.x_model[1:] - self.x_fem[1:])
 
 
-def use_setup(model: Surrogate, data: SetupData) -> None:
-    """Give a physics model the dynamics parameters φ (and V^T, μ_t) of ``data``'s coin."""
-    if isinstance(model, PhysicsModel):
-        model.set_setup(data.coin_mass_kg, data.mu_b, data.threshold_voltage())
-    elif isinstance(model, TipContactModel):
-        require_tip_contact(data)
-        model.set_setup(data.coin_mass_kg, data.mu_b, mu_t=data.mu_t)
-
-
-def evaluate(model: Surrogate, data: SetupData, engine: str = "auto", strict: bool = False) -> Evaluation:
+def evaluate(model: Surrogate, data: SetupData, engine: str = "auto", strict: bool = False,
+             phi: Phi | None = None) -> Evaluation:
     """Roll ``model`` out on ``data``'s actions and compare with the FEM.
 
     Parameters
     ----------
     model : Surrogate
-        Physics models are switched to the test coin (:func:`use_setup`).
     data : SetupData
         The test setup.
+    phi : Phi, optional
+        The coin to simulate; default ``model.phi_of(data)``, the test coin.
     engine : {"auto", "torch", "native"}
     strict : bool
         Raise when an input leaves the training range (else warn).
@@ -82,9 +77,10 @@ def evaluate(model: Surrogate, data: SetupData, engine: str = "auto", strict: bo
     -------
     Evaluation
     """
-    use_setup(model, data)
+    if phi is None:
+        phi = model.phi_of(data)
     with torch.inference_mode():
-        result = rollout(model, data.states()[0], data.actions(), engine=engine, strict=strict,
+        result = rollout(model, phi, data.states()[0], data.actions(), engine=engine, strict=strict,
                          label=f"{model.kind} on {data.name}")
     states = result.states[0].double().cpu().numpy()
     x_err = np.abs(states[1:, 0] - data.x[1:])

@@ -10,8 +10,6 @@ model is kept under ``set<i>/<kind>/``.
 """
 from __future__ import annotations
 
-import csv
-import json
 import logging
 import warnings
 from dataclasses import replace
@@ -20,13 +18,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from surrogate import store
-from surrogate.data import load_sweep
-from surrogate.evaluate import METRICS, evaluate
-from surrogate.models import KINDS
-from surrogate.rollout import OutOfRangeWarning
-from surrogate.train import TrainConfig, train
-from workflows.errors import InputError
+from deapull.errors import InputError
+from deapull.io import write_csv, write_json, write_text
+from deapull.surrogate import store
+from deapull.surrogate.data import load_sweep
+from deapull.surrogate.evaluate import METRICS, evaluate
+from deapull.surrogate.models import KINDS
+from deapull.surrogate.rollout import OutOfRangeWarning
+from deapull.surrogate.train import TrainConfig, train
 
 log = logging.getLogger(__name__)
 
@@ -36,13 +35,13 @@ PAPER = {"mae_x_m": {"f": 0.34e-4, "lstm": 3.86e-4, "nn": 9.86e-4},
          "mae_Fx_N": {"f": 3.68e-4}, "mae_Fy_N": {"f": 12.01e-4},
          "rollout_ms": {"f": 700.0, "nn": 300.0, "lstm": 1200.0}}
 PAPER_FEM_S = 130.0
-LABELS = {"f": "f (paper law)", "f-coulomb": "f (tip contact)", "nn": "NN", "lstm": "LSTM"}
 COLUMNS = ("set", "train", "val", "test", "model", "mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N",
            "x_error_pct_travel", "max_abs_x_error_m", "final_x_error_m", "travel_m", "rollout_ms", "engine",
            "diverged", "best_epoch", "epochs_run", "train_time_s", "out_of_range_warnings")
 
 
-def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=KINDS, sets=tuple(SETS)) -> list[dict]:
+def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=tuple(KINDS),
+        sets=tuple(SETS)) -> list[dict]:
     """Train and evaluate every model kind on every set; write the tables and plots.
 
     Parameters
@@ -63,6 +62,7 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=KIND
     list of dict
         One row per (set, model), the columns of :data:`COLUMNS`.
     """
+    kinds = list(kinds)
     for i in sets:
         if i not in SETS:
             raise InputError(f"set {i} does not exist; the paper's sets are 1..6")
@@ -90,29 +90,18 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=KIND
                      "out_of_range_warnings": len(caught)})
         curves[(i, kind)] = ev
     text = summary_table(rows, kinds) + "\n\n" + per_set_table(rows, kinds)
-    (out / "table.txt").write_text(text + "\n")
-    _write_csv(out / "experiments.csv", rows)
-    (out / "experiments.json").write_text(json.dumps({"rows": rows, "paper": PAPER, "paper_fem_s": PAPER_FEM_S,
-                                                      "fem_wall_time_s": {n: d.wall_time_s for n, d in data.items()},
-                                                      "config": {k: v for k, v in vars(base).items() if k != "kind"}},
-                                                     indent=2, default=_json_default) + "\n")
+    write_text(out / "table.txt", text + "\n")
+    write_csv(out / "experiments.csv", rows, COLUMNS)
+    write_json(out / "experiments.json", {"rows": rows, "paper": PAPER, "paper_fem_s": PAPER_FEM_S,
+                                          "fem_wall_time_s": {n: d.wall_time_s for n, d in data.items()},
+                                          "config": {k: v for k, v in vars(base).items() if k != "kind"}}, indent=2)
     plot_boxes(curves, kinds, sets, out / "x_error_boxplot.png")
     plot_rollouts(curves, kinds, sets, out / "rollouts.png")
     return rows
 
 
-def _json_default(value):
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    raise TypeError(f"cannot write {type(value).__name__} as JSON")
-
-
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: ("" if row[k] is None else row[k]) for k in COLUMNS})
+def _label(kind: str) -> str:
+    return KINDS[kind].label
 
 
 def _mean(rows: list[dict], kind: str, key: str):
@@ -127,13 +116,13 @@ def _grid(lines: list[list[str]]) -> str:
                      for line in lines)
 
 
-def summary_table(rows: list[dict], kinds=KINDS) -> str:
+def summary_table(rows: list[dict], kinds=tuple(KINDS)) -> str:
     """Table II: mean over the sets run of each error, ours beside the paper's.
 
     Rollouts that diverged are left out of the means and counted in the last row.
     """
     keys = ("mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N", "x_error_pct_travel", "rollout_ms")
-    head = ["mean over sets"] + [f"{LABELS[k]}" for k in kinds] + [f"paper {LABELS[k]}" for k in kinds
+    head = ["mean over sets"] + [f"{_label(k)}" for k in kinds] + [f"paper {_label(k)}" for k in kinds
                                                                    if any(k in PAPER[q] for q in PAPER)]
     paper_kinds = [k for k in kinds if any(k in PAPER[q] for q in PAPER)]
     lines = [head]
@@ -155,10 +144,10 @@ def summary_table(rows: list[dict], kinds=KINDS) -> str:
             + _grid(lines))
 
 
-def per_set_table(rows: list[dict], kinds=KINDS) -> str:
+def per_set_table(rows: list[dict], kinds=tuple(KINDS)) -> str:
     """MAE of x and x error (% of travel) per set and model, and which f leads."""
     sets = sorted({r["set"] for r in rows})
-    head = ["set (train/val/test)"] + [f"{LABELS[k]} x [1e-4 m]" for k in kinds] + [f"{LABELS[k]} [%]" for k in kinds]
+    head = ["set (train/val/test)"] + [f"{_label(k)} x [1e-4 m]" for k in kinds] + [f"{_label(k)} [%]" for k in kinds]
     lines = [head]
     by = {(r["set"], r["model"]): r for r in rows}
     for i in sets:
@@ -168,11 +157,11 @@ def per_set_table(rows: list[dict], kinds=KINDS) -> str:
         cells += [_cell(by[(i, k)], "x_error_pct_travel", 1.0) for k in kinds]
         lines.append(cells)
     verdicts = []
-    baselines = [k for k in kinds if k in ("nn", "lstm")]
-    for f_kind in (k for k in kinds if k.startswith("f")):
+    baselines = [k for k in kinds if not KINDS[k].physics]
+    for f_kind in (k for k in kinds if KINDS[k].physics):
         if baselines:
             ahead = sum(all(by[(i, f_kind)]["mae_x_m"] < by[(i, b)]["mae_x_m"] for b in baselines) for i in sets)
-            verdicts.append(f"{LABELS[f_kind]} ahead of {' and '.join(LABELS[b] for b in baselines)} "
+            verdicts.append(f"{_label(f_kind)} ahead of {' and '.join(_label(b) for b in baselines)} "
                             f"(MAE x) on {ahead}/{len(sets)} sets")
     return _grid(lines) + ("\n" + "\n".join(verdicts) if verdicts else "")
 
@@ -195,7 +184,7 @@ def plot_boxes(curves: dict, kinds, sets, path: Path) -> Path:
         bp = ax.boxplot(data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=False)
         for box in bp["boxes"]:
             box.set_facecolor(f"C{j}")
-        ax.plot([], [], color=f"C{j}", lw=6, label=LABELS[kind])
+        ax.plot([], [], color=f"C{j}", lw=6, label=_label(kind))
     ax.set_yscale("log")
     ax.set_xticks(list(sets))
     ax.set_xticklabels([f"{i}\n{'/'.join(SETS[i])}" for i in sets])
@@ -222,7 +211,7 @@ def plot_rollouts(curves: dict, kinds, sets, path: Path) -> Path:
         ax.plot(ev0.t, ev0.x_fem * 1e3, "k-", lw=2.5, alpha=0.4, label="FEM")
         for j, kind in enumerate(kinds):
             ev = curves[(i, kind)]
-            label = LABELS[kind] + (" (diverged)" if ev.metrics["diverged"] else "")
+            label = _label(kind) + (" (diverged)" if ev.metrics["diverged"] else "")
             ax.plot(ev.t, ev.x_model * 1e3, color=f"C{j}", lw=1, label=label)
         travel_mm = 1e3 * ev0.metrics["travel_m"]
         ax.set_ylim(-1.6 * travel_mm, 0.2 * travel_mm)

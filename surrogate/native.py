@@ -18,13 +18,11 @@ import os
 import platform
 import shutil
 import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from surrogate.models import LSTMBaseline, NNBaseline, PhysicsModel, Surrogate, TipContactModel
+from deapull.io import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -34,8 +32,8 @@ SOURCE = Path(__file__).with_name("native_rollout.c")
 FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fassociative-math", "-fno-signed-zeros",
          "-fno-trapping-math", "-ffp-contract=fast", "-shared", "-fPIC")
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)
-_FLOAT_P = ctypes.POINTER(ctypes.c_float)
-_INT_P = ctypes.POINTER(ctypes.c_int)
+_POINTERS = {np.dtype(np.float64): _DOUBLE_P, np.dtype(np.float32): ctypes.POINTER(ctypes.c_float),
+             np.dtype(np.intc): ctypes.POINTER(ctypes.c_int)}
 
 
 def _cache_dir() -> Path:
@@ -64,53 +62,38 @@ def library() -> ctypes.CDLL | None:
             detail = getattr(err, "stderr", "") or err
             log.warning("compiling %s failed (%s): rollouts use the slower torch engine", SOURCE.name, detail)
             return None
-    lib = ctypes.CDLL(str(target))
-    for kernel in (lib.deapull_rollout_physics, lib.deapull_rollout_tip):
-        kernel.argtypes = [ctypes.c_int, _INT_P, _FLOAT_P, _DOUBLE_P, _DOUBLE_P, ctypes.c_int, _DOUBLE_P,
-                           _DOUBLE_P, _DOUBLE_P, _DOUBLE_P]
-    lib.deapull_rollout_nn.argtypes = [ctypes.c_int, _INT_P, _FLOAT_P, _DOUBLE_P, ctypes.c_int, _DOUBLE_P,
-                                       _DOUBLE_P, _DOUBLE_P]
-    lib.deapull_rollout_lstm.argtypes = [ctypes.c_int, ctypes.c_int, _FLOAT_P, _DOUBLE_P, ctypes.c_int, _DOUBLE_P,
-                                         _DOUBLE_P, _DOUBLE_P]
-    return lib
+    return ctypes.CDLL(str(target))
 
 
 def _compile(compiler: str, target: Path) -> None:
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=target.parent, suffix=".so.tmp")
-    os.close(fd)
-    try:
-        subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", tmp, "-lm"], check=True, capture_output=True,
-                       text=True, timeout=120)
-        os.replace(tmp, target)
-        log.info("compiled %s -> %s", SOURCE.name, target)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    atomic_write(target, lambda tmp: subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", tmp, "-lm"], check=True,
+                                                    capture_output=True, text=True, timeout=120))
+    log.info("compiled %s -> %s", SOURCE.name, target)
 
 
-def supports(model: Surrogate) -> bool:
-    """True when ``model`` has a native kernel and the kernels are available."""
-    return isinstance(model, (PhysicsModel, TipContactModel, NNBaseline, LSTMBaseline)) and library() is not None
+def supports(model) -> bool:
+    """True when ``model``'s kind has a native kernel and the kernels are available."""
+    return callable(getattr(model, "native_kernel", None)) and library() is not None
 
 
-def _ptr(array: np.ndarray, kind):
-    return array.ctypes.data_as(kind)
+def _argument(value):
+    """A kernel argument as ctypes wants it: (argtype, value)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError("a native kernel takes no booleans")
+    if isinstance(value, (int, np.integer)):
+        return ctypes.c_int, int(value)
+    if isinstance(value, np.ndarray) and value.dtype in _POINTERS and value.flags.c_contiguous:
+        kind = _POINTERS[value.dtype]
+        return kind, value.ctypes.data_as(kind)
+    raise TypeError(f"a native kernel takes ints and C-contiguous float32/float64/int arrays, not {value!r:.80}")
 
 
-def _mlp_params(net: torch.nn.Sequential) -> tuple[np.ndarray, np.ndarray, int]:
-    linears = [m for m in net if isinstance(m, torch.nn.Linear)]
-    sizes = np.array([linears[0].in_features] + [m.out_features for m in linears], dtype=np.intc)
-    flat = np.concatenate([t.detach().cpu().float().reshape(-1).numpy() for m in linears for t in (m.weight, m.bias)])
-    return sizes, np.ascontiguousarray(flat, dtype=np.float32), len(linears)
+def rollout(model, phi, s0: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Roll ``model`` out from ``s0`` (2,) under ``actions`` (T, 2) in C, for the coin ``phi``.
 
-
-def _buffers(model: Surrogate, *names: str) -> np.ndarray:
-    return np.concatenate([getattr(model, n).detach().cpu().double().numpy() for n in names])
-
-
-def rollout(model: Surrogate, s0: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """Roll ``model`` out from ``s0`` (2,) under ``actions`` (T, 2) in C.
+    The model names its kernel and hands over its parameters
+    (``model.native_kernel(phi)``, a :class:`~deapull.surrogate.models.base.NativeKernel`);
+    this function only loads the library and calls it.
 
     Returns
     -------
@@ -122,45 +105,19 @@ def rollout(model: Surrogate, s0: np.ndarray, actions: np.ndarray) -> tuple[np.n
     lib = library()
     if lib is None:
         raise RuntimeError("the native rollout engine is not available")
+    if not callable(getattr(model, "native_kernel", None)):
+        raise TypeError(f"no native kernel for {type(model).__name__}")
+    kernel = model.native_kernel(phi)
     s0 = np.ascontiguousarray(s0, dtype=np.float64).reshape(2)
     actions = np.ascontiguousarray(actions, dtype=np.float64).reshape(-1, 2)
     n = len(actions)
     states = np.empty((n + 1, 2))
-    forces = None
-    if isinstance(model, PhysicsModel):
-        sizes, params, n_layers = _mlp_params(model.material)
-        norm = _buffers(model, "in_mean", "in_std", "z_mean", "z_std")
-        phys = np.array([model.mass_kg.item(), model.mu_b.item(), model.gravity_m_s2, model.v_threshold_V.item(),
-                         model.v_contact_loss_V])
-        forces = np.empty((n, 2))
-        rc = lib.deapull_rollout_physics(n_layers, _ptr(sizes, _INT_P), _ptr(params, _FLOAT_P), _ptr(norm, _DOUBLE_P),
-                                         _ptr(phys, _DOUBLE_P), n, _ptr(s0, _DOUBLE_P), _ptr(actions, _DOUBLE_P),
-                                         _ptr(states, _DOUBLE_P), _ptr(forces, _DOUBLE_P))
-    elif isinstance(model, TipContactModel):
-        sizes, params, n_layers = _mlp_params(model.material)
-        norm = np.array([model.in_mean[2].item(), model.in_std[2].item(), model.s_std[0].item(),
-                         model.z_mean[1].item(), model.z_std[1].item()])
-        phys = np.array([model.mass_kg.item(), model.mu_b.item(), model.mu_t.item(), model.gravity_m_s2,
-                         model.slip_rate_reg_m_s, model.iterations], dtype=np.float64)
-        forces = np.empty((n, 2))
-        rc = lib.deapull_rollout_tip(n_layers, _ptr(sizes, _INT_P), _ptr(params, _FLOAT_P), _ptr(norm, _DOUBLE_P),
-                                     _ptr(phys, _DOUBLE_P), n, _ptr(s0, _DOUBLE_P), _ptr(actions, _DOUBLE_P),
-                                     _ptr(states, _DOUBLE_P), _ptr(forces, _DOUBLE_P))
-    elif isinstance(model, NNBaseline):
-        sizes, params, n_layers = _mlp_params(model.net)
-        norm = _buffers(model, "in_mean", "in_std", "ds_std")
-        rc = lib.deapull_rollout_nn(n_layers, _ptr(sizes, _INT_P), _ptr(params, _FLOAT_P), _ptr(norm, _DOUBLE_P), n,
-                                    _ptr(s0, _DOUBLE_P), _ptr(actions, _DOUBLE_P), _ptr(states, _DOUBLE_P))
-    elif isinstance(model, LSTMBaseline):
-        lstm = model.lstm
-        params = np.concatenate([t.detach().cpu().float().reshape(-1).numpy() for t in (
-            lstm.weight_ih_l0, lstm.weight_hh_l0, lstm.bias_ih_l0, lstm.bias_hh_l0, model.head.weight,
-            model.head.bias)]).astype(np.float32)
-        norm = _buffers(model, "in_mean", "in_std", "ds_std")
-        rc = lib.deapull_rollout_lstm(lstm.hidden_size, model.window, _ptr(params, _FLOAT_P), _ptr(norm, _DOUBLE_P),
-                                      n, _ptr(s0, _DOUBLE_P), _ptr(actions, _DOUBLE_P), _ptr(states, _DOUBLE_P))
-    else:
-        raise TypeError(f"no native kernel for {type(model).__name__}")
-    if rc != 0:
+    forces = np.empty((n, 2)) if kernel.forces else None
+    outputs = (n, s0, actions, states) + ((forces,) if kernel.forces else ())
+    arguments = [_argument(v) for v in (*kernel.args, *outputs)]
+    function = getattr(lib, kernel.name)
+    function.argtypes = [t for t, _ in arguments]
+    function.restype = ctypes.c_int
+    if function(*(v for _, v in arguments)) != 0:
         raise MemoryError("native rollout could not allocate its scratch memory")
     return states, forces

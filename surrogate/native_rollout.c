@@ -1,6 +1,6 @@
 /*
  * Batch-1 CPU rollouts of the surrogate models, step for step the same arithmetic as the
- * torch modules in surrogate/models.py (networks in float32, coin dynamics in double).
+ * torch modules in surrogate/models/ (networks in float32, coin dynamics in double).
  * Compiled on first use by surrogate/native.py; see docs/surrogate.md ("Rollouts").
  *
  * Layouts (all row-major, as torch stores them):
@@ -126,7 +126,7 @@ static double regularised_slip(double v, double eps) { return v / sqrt(v * v + e
 /*
  * One backward-Euler step of the coin dragged by the tip (velocity w, regularised friction
  * cap_t) and held by the ground (exact Coulomb, cap_b); c = m_c / dt. Same arithmetic as
- * surrogate.models.tip_coin_step (bracketed Newton, then one Newton correction).
+ * surrogate.models.tip_contact.tip_coin_step (bracketed Newton, then one Newton correction).
  */
 static double tip_coin_step(double u, double w, double cap_t, double cap_b, double c, double eps, int iterations,
                             double *force)

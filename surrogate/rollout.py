@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import torch
 
-from surrogate import native
-from surrogate.models import INPUT_UNITS, INPUTS, Surrogate
-from workflows.errors import InputError
+from deapull.errors import InputError
+from deapull.surrogate import native
+from deapull.surrogate.models import INPUT_UNITS, INPUTS, Surrogate
+from deapull.surrogate.phi import Phi
 
 ENGINES = ("auto", "torch", "native")
 
@@ -54,14 +55,17 @@ class Rollout:
     wall_time_s: float
 
 
-def rollout(model: Surrogate, s0, actions, engine: str = "auto", strict: bool = False,
+def rollout(model: Surrogate, phi: Phi | None, s0, actions, engine: str = "auto", strict: bool = False,
             label: str = "rollout") -> Rollout:
     """Simulate ``model`` recursively from ``s0`` under the action sequence ``actions``.
 
     Parameters
     ----------
     model : Surrogate
-        Physics models simulate the setup last given to ``set_setup``.
+    phi : Phi or None
+        The coin the physics models simulate (e.g. ``model.phi_of(data)``): one coin, or
+        fields of shape (B,) for one per rollout; tensors that require gradients get them
+        (torch engine). The black boxes take None.
     s0 : array-like
         (2,) or (B, 2) initial state (x, u).
     actions : array-like
@@ -86,27 +90,34 @@ def rollout(model: Surrogate, s0, actions, engine: str = "auto", strict: bool = 
     if s0.shape[-1] != 2 or actions.dim() != 3 or actions.shape[-1] != 2 or actions.shape[0] != s0.shape[0]:
         raise InputError(f"{label}: s0 {tuple(s0.shape)} and actions {tuple(actions.shape)} do not match "
                          "(expected (B, 2) and (B, T, 2))")
+    phi = model.check_phi(phi)
+    if phi is not None:
+        phi = phi.to(device=param.device, dtype=param.dtype)
+        if len(phi) not in (1, s0.shape[0]):
+            raise InputError(f"{label}: φ holds {len(phi)} coins for {s0.shape[0]} rollouts")
     check_range(model, None, actions, strict, label)
     if engine == "auto":
         engine = "native" if (s0.shape[0] == 1 and param.device.type == "cpu" and not torch.is_grad_enabled()
                               and native.supports(model)) else "torch"
     start = time.perf_counter()
     if engine == "native":
-        states, forces = native.rollout(model, s0[0].cpu().numpy(), actions[0].cpu().numpy())
+        if s0.shape[0] != 1:
+            raise InputError(f"{label}: the native engine rolls out one run at a time, got {s0.shape[0]}")
+        states, forces = native.rollout(model, phi, s0[0].cpu().numpy(), actions[0].cpu().numpy())
         states = torch.from_numpy(states).unsqueeze(0)
         forces = None if forces is None else torch.from_numpy(forces).unsqueeze(0)
     else:
-        states, forces = _torch_rollout(model, s0, actions)
+        states, forces = _torch_rollout(model, phi, s0, actions)
     wall = time.perf_counter() - start
     check_range(model, states, None, strict, label)
     return Rollout(states=states, forces=forces, engine=engine, wall_time_s=wall)
 
 
-def _torch_rollout(model: Surrogate, s0: torch.Tensor, actions: torch.Tensor):
+def _torch_rollout(model: Surrogate, phi: Phi | None, s0: torch.Tensor, actions: torch.Tensor):
     s, memory = s0, model.init_memory(s0, actions[:, 0])
     states, forces = [s0], []
     for a in actions.unbind(1):
-        s, z, memory = model.step(s, a, memory)
+        s, z, memory = model.step(s, a, memory, phi)
         states.append(s)
         forces.append(z)
     return torch.stack(states, 1), (torch.stack(forces, 1) if forces and forces[0] is not None else None)

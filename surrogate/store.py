@@ -3,25 +3,32 @@
 ``model.json`` holds everything needed to rebuild the model and to read it without torch:
 its kind and hyper-parameters, the normalisation of the training data, the training input
 range, the setups it saw (file, φ, V^T), the training configuration and outcome, and the
-package versions. Infinite values (e.g. no contact loss) are written as ``null``.
+package versions. Infinite values (e.g. no contact loss) are written as ``null``. Every
+file is written atomically (:func:`deapull.io.atomic_write`).
+
+A model holds no φ: the coin is an argument of every step. Folders saved while φ was
+part of the model (same format) still load: their φ entries of the state dict
+(:data:`LEGACY_PHI_KEYS`) are dropped, and the paper model's old hyper-parameter ``law``
+is accepted.
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import platform
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from surrogate.models import InputRange, Normalisation, Surrogate, build
-from workflows.errors import InputError
+from deapull.errors import InputError
+from deapull.io import atomic_write, write_csv, write_text
+from deapull.surrogate.models import InputRange, Normalisation, Surrogate, build
 
 FORMAT = "deapull-surrogate/1"
 STATE, META, HISTORY = "model.pt", "model.json", "history.csv"
+#: state-dict entries of φ in folders saved before φ became an argument of the step
+LEGACY_PHI_KEYS = ("mass_kg", "mu_b", "mu_t", "v_threshold_V")
 
 
 class ModelFileError(InputError):
@@ -46,11 +53,10 @@ def save(model: Surrogate, out_dir: str | Path, training: dict | None = None, hi
             "normalisation": model.norm.to_dict(), "input_range": model.input_range.to_dict(),
             "training": training or {}, "versions": {"python": platform.python_version(),
                                                      "torch": torch.__version__, "numpy": np.__version__}}
-    _atomic(out / STATE, lambda p: torch.save(model.state_dict(), p))
-    _atomic(out / META, lambda p: Path(p).write_text(json.dumps(_finite(meta), indent=2) + "\n"))
+    atomic_write(out / STATE, lambda p: torch.save(model.state_dict(), p))
+    write_text(out / META, json.dumps(_finite(meta), indent=2) + "\n")
     if history:
-        rows = [",".join(history[0])] + [",".join(f"{v:.9g}" for v in row.values()) for row in history]
-        _atomic(out / HISTORY, lambda p: Path(p).write_text("\n".join(rows) + "\n"))
+        write_csv(out / HISTORY, history, list(history[0]))
     return out
 
 
@@ -69,8 +75,12 @@ def load(model_dir: str | Path) -> tuple[Surrogate, dict]:
     hparams = {k: (math.inf if k == "v_contact_loss_V" and v is None else v)
                for k, v in meta["hyper_parameters"].items()}
     rng = {k: meta["input_range"][k] for k in ("low", "high", "tolerance")}
-    model = build(meta["kind"], Normalisation(**meta["normalisation"]), InputRange(**rng), hparams)
-    model.load_state_dict(torch.load(folder / STATE, map_location="cpu", weights_only=True))
+    try:
+        model = build(meta["kind"], Normalisation(**meta["normalisation"]), InputRange(**rng), hparams)
+    except (TypeError, ValueError) as err:
+        raise ModelFileError(f"{folder / META}: cannot rebuild the model ({err})") from err
+    state = torch.load(folder / STATE, map_location="cpu", weights_only=True)
+    model.load_state_dict({k: v for k, v in state.items() if k not in LEGACY_PHI_KEYS})
     return model.eval(), meta
 
 
@@ -84,13 +94,3 @@ def _finite(value):
         return None
     return value
 
-
-def _atomic(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)

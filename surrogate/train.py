@@ -4,7 +4,8 @@ validation setup.
 Adam (learning rate 1e-3) on mini-batches of the training setups' transitions, up to
 ``epochs`` passes; after each pass the loss on the validation setup decides early stopping
 (no improvement, minimum change 0, for ``patience`` passes) and the best weights are kept.
-φ = (m_c, μ_b) of each row is the true value of its setup and stays fixed (Algorithm 1).
+φ of each row (:class:`~deapull.surrogate.phi.Phi`, what the kind needs: m_c, μ_b and μ_t or
+V^T) is the true value of its setup and stays fixed (Algorithm 1).
 Seeded: the same seed, data and device give the same weights on CPU.
 """
 from __future__ import annotations
@@ -18,9 +19,10 @@ from dataclasses import asdict, dataclass, field
 import torch
 from tqdm import tqdm
 
-from surrogate.data import SetupData, require_tip_contact, transitions
-from surrogate.models import KINDS, InputRange, Normalisation, Surrogate, build
-from workflows.errors import InputError
+from deapull.errors import InputError
+from deapull.surrogate.data import SetupData, transitions
+from deapull.surrogate.models import KINDS, InputRange, Normalisation, Surrogate, build
+from deapull.surrogate.phi import Phi
 
 log = logging.getLogger(__name__)
 
@@ -77,19 +79,9 @@ class TrainConfig:
         resolve_device(self.device)
 
     def model_hparams(self, train_sets: list[SetupData]) -> dict:
-        """The hyper-parameters :func:`surrogate.models.build` takes for this kind."""
-        if self.kind == "lstm":
-            return {"hidden": self.hidden, "window": self.window}
-        if self.kind == "nn":
-            return {"hidden": self.hidden, "layers": self.layers}
-        common = {"hidden": self.hidden, "layers": self.layers, "gravity_m_s2": train_sets[0].gravity_m_s2}
-        if self.kind == "f":
-            return {**common, "v_contact_loss_V": min(d.contact_loss_voltage() for d in train_sets)}
-        eps = {d.slip_rate_reg_m_s for d in train_sets}
-        if len(eps) != 1:
-            raise InputError(f"training setups were made with different friction regularisations {sorted(eps)} m/s; "
-                             "f-coulomb needs one")
-        return {**common, "slip_rate_reg_m_s": eps.pop()}
+        """The hyper-parameters :func:`surrogate.models.build` takes for this kind (the kind
+        decides: ``training_hparams``)."""
+        return KINDS[self.kind].training_hparams(self, train_sets)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -133,11 +125,13 @@ class TrainResult:
                 "wall_time_s": self.wall_time_s}
 
 
-def setup_record(data: SetupData, role: str, needs_threshold: bool) -> dict:
-    """A setup's identity and dynamics parameters, as saved with a model."""
+def setup_record(data: SetupData, role: str, phi: Phi) -> dict:
+    """A setup's identity and the φ it was trained with, as saved with a model (V^T: None
+    where the kind does not use it)."""
+    vt = phi.value("v_threshold_V")
     return {"role": role, "file": str(data.path), "steps": data.n_steps, "coin_mass_kg": data.coin_mass_kg,
             "mu_b": data.mu_b, "mu_t": data.mu_t, "gravity_m_s2": data.gravity_m_s2, "travel_m": data.travel_m,
-            "v_threshold_V": data.threshold_voltage() if needs_threshold else None}
+            "v_threshold_V": vt if math.isfinite(vt) else None}
 
 
 def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData) -> TrainResult:
@@ -159,25 +153,21 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData) 
     device = resolve_device(config.device)
     torch.manual_seed(config.seed)
     shuffle = torch.Generator().manual_seed(config.seed)
-    physics = config.kind in ("f", "f-coulomb")
-    needs_vt = config.kind == "f"
-    if config.kind == "f-coulomb":
-        for d in [*train_sets, val_set]:
-            require_tip_contact(d)
-    setups = {d.name: setup_record(d, "train", needs_vt) for d in train_sets}
+    kind = KINDS[config.kind]
+    phis = {d.name: kind.phi_of(d) for d in [*train_sets, val_set]}
+    setups = {d.name: setup_record(d, "train", phis[d.name]) for d in train_sets}
     if val_set.name in setups:
         setups[val_set.name]["role"] = "train+val"
     else:
-        setups[val_set.name] = setup_record(val_set, "val", needs_vt)
-    v_thresholds = {name: rec["v_threshold_V"] for name, rec in setups.items() if rec["v_threshold_V"] is not None}
-    window = config.window if config.kind == "lstm" else 1
-    train_tr = transitions(train_sets, window, v_thresholds)
-    val_tr = transitions([val_set], window, v_thresholds).to(device)
+        setups[val_set.name] = setup_record(val_set, "val", phis[val_set.name])
+    hparams = config.model_hparams(train_sets)
+    window = hparams.get("window", 1)
+    train_tr = transitions(train_sets, window, phis)
+    val_tr = transitions([val_set], window, phis).to(device)
     model = build(config.kind, Normalisation.from_transitions(train_tr),
-                  InputRange.from_transitions(train_tr, config.range_tolerance), config.model_hparams(train_sets))
-    if physics:
-        first = setups[train_sets[0].name]
-        model.set_setup(first["coin_mass_kg"], first["mu_b"], first["v_threshold_V"] or math.nan, first["mu_t"])
+                  InputRange.from_transitions(train_tr, config.range_tolerance), hparams)
+    model.check_phi(train_tr.phi)
+    model.check_phi(val_tr.phi)
     model.to(device)
     train_tr = train_tr.to(device)
     optimiser = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=config.lr)

@@ -1,6 +1,13 @@
-"""Shared fixtures: tiny meshes, an mpirun launcher."""
+"""Shared fixtures: tiny meshes, an mpirun launcher; the ``fem`` marker.
+
+The tests mirror the packages (tests/<package>/ tests deapull.<package>). Every test under
+tests/meshing/ and tests/fem_solver/ is marked ``fem`` (it needs gmsh and dolfinx), as is
+any module elsewhere that sets ``pytestmark = pytest.mark.fem``. ``pytest -m "not fem"``
+runs the rest on a machine without FEniCSx; there the FEM folders are not even collected.
+"""
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -8,9 +15,31 @@ from pathlib import Path
 
 import pytest
 
-from workflows import scene as scenes
+from deapull import scene as scenes
 
 REPO = Path(__file__).resolve().parents[1]
+DATA = Path(__file__).resolve().parent / "data"
+#: test folders whose every test needs gmsh and dolfinx
+FEM_FOLDERS = ("meshing", "fem_solver")
+HAVE_FEM = all(importlib.util.find_spec(m) is not None for m in ("dolfinx", "gmsh"))
+
+
+def _fem_folder(path: Path) -> bool:
+    parts = Path(path).resolve().relative_to(REPO / "tests").parts
+    return len(parts) > 1 and parts[0] in FEM_FOLDERS
+
+
+def pytest_ignore_collect(collection_path, config):
+    """Without FEniCSx the FEM folders are skipped at collection (their imports need it)."""
+    if not HAVE_FEM and collection_path.is_relative_to(REPO / "tests") and _fem_folder(collection_path):
+        return True
+    return None
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if _fem_folder(item.path):
+            item.add_marker(pytest.mark.fem)
 TINY_MESH = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004")
 
 
@@ -28,3 +57,53 @@ def tiny_scene():
     def make(name: str, *overrides: str, setup=None):
         return scenes.load(name, setup=setup, overrides=(*TINY_MESH, *overrides))
     return make
+
+
+# --- the surrogate's FEM fixture and trained models (tests/surrogate, tests/workflows) -------
+# No dolfinx, gmsh or mpirun: the datasets are committed under tests/data/sweep, made by
+# this project's FEM (tests/data/make_sweep.py states the command; `make test-data`
+# regenerates them). torch is imported inside the fixtures, so FEM tests never load it.
+
+#: the committed test sweep: the shipped coin_pull scene on an 8 × 1 hexahedral mesh, all
+#: eight setups (722 points each, two stages, 0.47–0.69 mm of travel)
+SWEEP = DATA / "sweep"
+#: small but real trainings: each kind once per session, shared by the tests
+QUICK = {"f": dict(epochs=80), "f-coulomb": dict(epochs=80), "nn": dict(epochs=40),
+         "lstm": dict(epochs=25, hidden=32, batch_size=64)}
+
+
+@pytest.fixture(scope="session")
+def sweep_dir():
+    """Folder with C1.nc .. C8.nc made by the project's own FEM at test size (committed).
+
+    ``DEAPULL_TEST_SWEEP=DIR`` uses another folder made with the same command (see
+    tests/data/make_sweep.py). Tests read it and never write into it.
+    """
+    folder = Path(os.environ.get("DEAPULL_TEST_SWEEP") or SWEEP)
+    missing = [f"C{i}.nc" for i in range(1, 9) if not (folder / f"C{i}.nc").is_file()]
+    if missing:
+        pytest.fail(f"{folder}: test sweep incomplete (missing {', '.join(missing)}); run `make test-data`")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def sweep(sweep_dir):
+    """The checked datasets of all eight setups, by name."""
+    from deapull.surrogate.data import load_sweep
+    return load_sweep(sweep_dir, [f"C{i}" for i in range(1, 9)])
+
+
+@pytest.fixture(scope="session")
+def trained(sweep):
+    """``trained(kind)``: a model of ``kind`` trained on C1 (validated on C2), cached."""
+    import torch
+
+    from deapull.surrogate.train import TrainConfig, train
+    torch.set_num_threads(1)
+    cache = {}
+
+    def get(kind: str):
+        if kind not in cache:
+            cache[kind] = train(TrainConfig(kind=kind, **QUICK[kind]), [sweep["C1"]], sweep["C2"])
+        return cache[kind]
+    return get

@@ -1,5 +1,5 @@
-"""``python -m workflows`` / ``deapull``: the command-line entry point."""
-from workflows.cli import main
+"""``python -m deapull.workflows`` / ``deapull``: the command-line entry point."""
+from deapull.workflows.cli import main
 
 if __name__ == "__main__":
     raise SystemExit(main())

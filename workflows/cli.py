@@ -1,7 +1,7 @@
 """``deapull``: the verbs of the pipeline.
 
 Every sub-command validates its input before any expensive work; bad input
-(:class:`workflows.errors.InputError`) prints one clear line and exits with status 2.
+(:class:`deapull.errors.InputError`) prints one clear line and exits with status 2.
 Under MPI only rank 0 prints.
 """
 from __future__ import annotations
@@ -11,11 +11,12 @@ import json
 import logging
 import sys
 
-from workflows import scene as scenes
-from workflows.errors import InputError
+from deapull import scene as scenes
+from deapull.errors import InputError
+from deapull.workflows import cli_fem, cli_studies, cli_surrogate
+from deapull.workflows.args import add_scene_args, load_scene
 
 log = logging.getLogger("deapull")
-PACKAGES = ("deapull", "meshing", "fem_solver", "surrogate", "workflows")
 
 
 def _rank() -> int:
@@ -25,23 +26,27 @@ def _rank() -> int:
     return MPI.COMM_WORLD.rank
 
 
+class QuietOthers(logging.Filter):
+    """Pass deapull's own records, and other libraries' only from WARNING up.
+
+    A first run compiles the FFCx forms: cffi imports setuptools, which raises the root
+    logger to INFO, and every gcc call then logs a line ("running build_ext", the compiler
+    command...). Those are debug detail for us: ``-v`` shows them.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.name.startswith("deapull") or record.levelno >= logging.WARNING
+
+
 def setup_logging(verbose: bool = False) -> None:
+    """deapull's INFO (DEBUG with ``-v``) on rank 0, warnings only elsewhere and from other libraries."""
     level = (logging.DEBUG if verbose else logging.INFO) if _rank() == 0 else logging.WARNING
-    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s: %(message)s",
-                        datefmt="%H:%M:%S")
-    for name in PACKAGES:
-        logging.getLogger(name).setLevel(level)
-
-
-def add_scene_args(p: argparse.ArgumentParser, required: bool = True) -> None:
-    p.add_argument("--scene", required=required, help="shipped scene name or path to a TOML file")
-    p.add_argument("--setup", default=None, help="setup of the scene (coin_pull: C1..C8; default: the scene's)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one scene key (validated like the file); repeatable")
-
-
-def load_scene(args) -> scenes.Scene:
-    return scenes.load(args.scene, setup=args.setup, overrides=args.overrides)
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s", datefmt="%H:%M:%S"))
+    if not verbose:
+        handler.addFilter(QuietOthers())
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING, handlers=[handler], force=True)
+    logging.getLogger("deapull").setLevel(level)
 
 
 def cmd_scenes(args) -> int:
@@ -61,7 +66,7 @@ def cmd_show_scene(args) -> int:
 
 def cmd_mesh(args) -> int:
     sc = load_scene(args)
-    from meshing.build import write_mesh
+    from deapull.meshing.build import write_mesh
     path, summary = write_mesh(sc, args.out)
     print(f"wrote {path}")
     print(json.dumps(summary, indent=2))
@@ -69,7 +74,7 @@ def cmd_mesh(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from workflows.report import plot_run
+    from deapull.workflows.report import plot_run
     print(f"wrote {plot_run(args.data, args.out)}")
     return 0
 
@@ -84,8 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("show-scene", help="print the resolved scene as TOML")
     p.add_argument("name", help="shipped scene name or path")
-    p.add_argument("--setup", default=None)
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    add_scene_args(p, scene=False)
     p.set_defaults(func=cmd_show_scene)
 
     p = sub.add_parser("mesh", help="mesh a scene with gmsh (writes mesh.msh and mesh.json)")
@@ -98,22 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="PNG file")
     p.set_defaults(func=cmd_plot)
 
-    for module in _stage_clis():
+    for module in (cli_fem, cli_studies, cli_surrogate):   # each imports its stage lazily
         module.register(sub)
     return parser
-
-
-def _stage_clis():
-    """The stages that add sub-commands of their own (imported lazily: dolfinx and torch are slow)."""
-    import importlib
-    out = []
-    for name in ("fem_solver.cli", "fem_solver.studies_cli", "surrogate.cli"):
-        try:
-            out.append(importlib.import_module(name))
-        except ModuleNotFoundError as err:
-            if err.name not in (name, name.split(".")[0]):
-                raise
-    return out
 
 
 def main(argv=None) -> int:

@@ -9,7 +9,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import xarray as xr  # noqa: E402
 
-from workflows.errors import InputError  # noqa: E402
+from deapull.errors import InputError  # noqa: E402
 
 
 def plot_run(dataset_path, png_path) -> Path:
@@ -21,7 +21,7 @@ def plot_run(dataset_path, png_path) -> Path:
     t = ds.t.values
     fig, ax = plt.subplots(4, 1, figsize=(7, 9), sharex=True)
     ax[0].plot(t, ds.x * 1e3)
-    ax[0].set_ylabel("coin x [mm]")
+    ax[0].set_ylabel("coin x [mm]\n(+x: toward the clamp)")
     ax[1].plot(t, ds.u * 1e3)
     ax[1].set_ylabel("coin u [mm/s]")
     ax[2].plot(t, ds.Fx * 1e3, label="Fx")
@@ -33,10 +33,14 @@ def plot_run(dataset_path, png_path) -> Path:
     ax[3].set_xlabel("t [s]")
     slip = ds.stick.values == 0
     if slip.any():
+        first, last = int(slip.argmax()), len(slip) - 1 - int(slip[::-1].argmax())
         for a in ax:
-            a.axvspan(t[slip.argmax()], t[-1], color="0.9", zorder=0)
+            a.axvspan(t[max(first - 1, 0)], t[last], color="0.9", zorder=0)
+    x = ds.x.values
+    motion = ds.attrs.get("coin_motion") or ("toward -x (away from the clamp)" if x.min() < -abs(x.max())
+                                              else "toward +x (toward the clamp)")
     fig.suptitle(f"{ds.attrs.get('scene', '')} {ds.attrs.get('setup', '')}: {ds.sizes['step']} points, "
-                 f"travel {-float(ds.x.min()) * 1e3:.3f} mm (shaded: kinetic stage)")
+                 f"travel {float(abs(x).max()) * 1e3:.3f} mm {motion}\n(shaded: kinetic stage)")
     fig.tight_layout()
     png_path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png_path, dpi=110)

@@ -8,9 +8,11 @@ import pytest
 import torch
 import xarray as xr
 
-from surrogate.data import DatasetError, load_setup, load_sweep, require_tip_contact, transitions
-from surrogate.models import Normalisation
-from surrogate.train import TrainConfig, train
+import deapull.dataset
+
+from deapull.surrogate.data import DatasetError, load_setup, load_sweep, require_tip_contact, transitions
+from deapull.surrogate.models import Normalisation
+from deapull.surrogate.train import TrainConfig, train
 
 
 def test_transitions_pair_each_state_with_the_next_increment(sweep):
@@ -22,8 +24,10 @@ def test_transitions_pair_each_state_with_the_next_increment(sweep):
     assert tr.a[k].tolist() == [data.V[k + 1], data.dt[k + 1]]
     assert tr.z[k].tolist() == [data.Fx[k + 1], data.Fy[k + 1]]
     assert tr.s_next[k].tolist() == [data.x[k + 1], data.u[k + 1]]
-    assert tr.phi[k].tolist()[:2] == [data.coin_mass_kg, data.mu_b] and math.isnan(tr.phi[k, 2])
-    assert tr.phi[k, 3].item() == data.mu_t == 0.5 and tr.v_prev[k].item() == data.V[k]
+    assert tr.phi.mass_kg[k].item() == data.coin_mass_kg and tr.phi.mu_b[k].item() == data.mu_b
+    assert math.isnan(tr.phi.v_threshold_V[k]), "no V^T unless the kind asks for it"
+    assert tr.phi.mu_t[k].item() == data.mu_t == 0.5 and tr.v_prev[k].item() == data.V[k]
+    assert tr.phi.mass_kg.shape == (len(tr),) and tr.subset(torch.tensor([k])).phi.mu_t.tolist() == [0.5]
     assert tr.window.shape == (len(tr), 8, 4)
     assert torch.equal(tr.window[k, -1], torch.cat([tr.s[k], tr.a[k]]))
     assert torch.equal(tr.window[k, 0], torch.cat([tr.s[k - 7], tr.a[k - 7]]))
@@ -85,18 +89,38 @@ def _no_mass(ds):
     del ds.attrs["coin_mass_kg"]
 
 
+def _negative_mu_t(ds):
+    ds.attrs["coin_mu_t"] = -0.5
+
+
+def _short(ds):
+    return ds.isel(step=slice(0, 9))
+
+
+def _zero_step(ds):
+    ds["dt"].values[5] = 0.0
+
+
+def _transposed(ds):
+    return ds.assign(x=(("step", "two"), np.stack([ds["x"].values] * 2, axis=1), ds["x"].attrs))
+
+
 @pytest.mark.parametrize("edit, words", [
     (_drop, ["'Fy'", "missing"]),
     (_set_units, ["'Fx'", "'mN'", "'N'"]),
     (_set_nan, ["'u'", "non-finite", "step 42"]),
     (_incomplete, ["'complete'"]),
     (_no_mass, ["'coin_mass_kg'", "missing"]),
+    (_negative_mu_t, ["'coin_mu_t'", "-0.5", "non-negative"]),
+    (_short, ["'t'", "9 steps", "at least 10"]),
+    (_zero_step, ["'dt'", "non-positive", "step 5"]),
+    (_transposed, ["'x'", "dimensions"]),
 ])
 def test_bad_dataset_fails_naming_file_and_variable(sweep_dir, tmp_path, edit, words):
     path = _corrupt(sweep_dir, tmp_path, edit)
     with pytest.raises(DatasetError) as err:
         load_setup(path)
-    assert isinstance(err.value, ValueError)
+    assert isinstance(err.value, ValueError) and isinstance(err.value, deapull.dataset.DatasetError)
     assert str(path) in str(err.value)
     for word in words:
         assert word in str(err.value)

@@ -2,21 +2,23 @@
 training range is guarded."""
 from __future__ import annotations
 
+import json
 import warnings
 
 import numpy as np
 import pytest
 import torch
 
-from surrogate import native, store
-from surrogate.evaluate import evaluate
-from surrogate.models import KINDS
-from surrogate.rollout import OutOfRangeError, OutOfRangeWarning, rollout
+from deapull.surrogate import native, store
+from deapull.surrogate.evaluate import evaluate
+from deapull.surrogate.models import KINDS
+from deapull.surrogate.phi import Phi
+from deapull.surrogate.rollout import OutOfRangeError, OutOfRangeWarning, rollout
 
 ENGINES = ["torch", "native"] if native.library() is not None else ["torch"]
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", list(KINDS))
 def test_saved_and_reloaded_model_rolls_out_identically(sweep, trained, tmp_path, kind):
     result = trained(kind)
     store.save(result.model, tmp_path / kind, result.summary(), result.history)
@@ -31,7 +33,7 @@ def test_saved_and_reloaded_model_rolls_out_identically(sweep, trained, tmp_path
 
 
 @pytest.mark.skipif(len(ENGINES) < 2, reason="no C compiler: the native engine is not available")
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", list(KINDS))
 def test_native_engine_matches_torch(sweep, trained, kind):
     data = sweep["C3"]
     model = trained(kind).model
@@ -43,13 +45,32 @@ def test_native_engine_matches_torch(sweep, trained, kind):
     assert n.metrics["mae_x_m"] == pytest.approx(t.metrics["mae_x_m"], rel=1e-2, abs=1e-3 * data.travel_m)
 
 
+@pytest.mark.parametrize("kind, legacy_state", [("f", {"mass_kg": 1.36e-3, "mu_b": 0.2, "v_threshold_V": 150.0}),
+                                                ("f-coulomb", {"mass_kg": 1.36e-3, "mu_b": 0.2, "mu_t": 0.5})])
+def test_model_folder_saved_with_phi_inside_still_loads(sweep, trained, tmp_path, kind, legacy_state):
+    """Folders written while φ was part of the model (same format: φ in the state dict, the
+    paper model's hyper-parameter ``law``) load and roll out like today's."""
+    model = trained(kind).model
+    folder = store.save(model, tmp_path / kind)
+    state = torch.load(folder / store.STATE, weights_only=True)
+    state.update({k: torch.tensor(v) for k, v in legacy_state.items()})
+    torch.save(state, folder / store.STATE)
+    meta = json.loads((folder / store.META).read_text())
+    if kind == "f":
+        meta["hyper_parameters"]["law"] = "paper"
+    (folder / store.META).write_text(json.dumps(meta))
+    again, _ = store.load(folder)
+    assert np.array_equal(evaluate(again, sweep["C3"], engine="torch").x_model,
+                          evaluate(model, sweep["C3"], engine="torch").x_model)
+
+
 def test_batched_rollout_matches_single(sweep, trained):
     model = trained("f-coulomb").model
     data = sweep["C1"]
-    s0, actions = data.states()[0], data.actions()
+    s0, actions, phi = data.states()[0], data.actions(), model.phi_of(data)
     with torch.no_grad():
-        one = rollout(model, s0, actions, engine="torch").states
-        many = rollout(model, np.tile(s0, (3, 1)), np.tile(actions, (3, 1, 1)), engine="torch").states
+        one = rollout(model, phi, s0, actions, engine="torch").states
+        many = rollout(model, phi, np.tile(s0, (3, 1)), np.tile(actions, (3, 1, 1)), engine="torch").states
     assert many.shape == (3, data.n_steps, 2)
     assert torch.equal(many[0], many[2])
     scale = max(data.travel_m, float(one[..., 0].abs().max()))
@@ -64,15 +85,11 @@ def test_batched_rollout_matches_single(sweep, trained):
 def test_rollout_is_differentiable_in_phi(sweep, trained):
     model = trained("f-coulomb").model
     data = sweep["C1"]
-    model.mass_kg.requires_grad_(True)
-    try:
-        out = rollout(model, data.states()[0], data.actions()[:500])
-        assert out.engine == "torch"
-        out.states[0, -1, 0].backward()
-        assert model.mass_kg.grad is not None and model.mass_kg.grad.item() != 0
-    finally:
-        model.mass_kg.requires_grad_(False)
-        model.mass_kg.grad = None
+    mass = torch.tensor(data.coin_mass_kg, requires_grad=True)
+    out = rollout(model, Phi(mass, data.mu_b, data.mu_t), data.states()[0], data.actions()[:500])
+    assert out.engine == "torch"
+    out.states[0, -1, 0].backward()
+    assert mass.grad is not None and mass.grad.item() != 0
 
 
 def test_inputs_outside_the_training_range_warn_or_raise(sweep, trained):
@@ -81,11 +98,11 @@ def test_inputs_outside_the_training_range_warn_or_raise(sweep, trained):
     actions = data.actions().copy()
     actions[10:, 0] *= 3.0
     with pytest.warns(OutOfRangeWarning, match=r"too hot: V = [\d.]+ V at step \d+ is outside"):
-        rollout(model, data.states()[0], actions, label="too hot")
+        rollout(model, None, data.states()[0], actions, label="too hot")
     with pytest.raises(OutOfRangeError, match="too hot: V"):
-        rollout(model, data.states()[0], actions, strict=True, label="too hot")
+        rollout(model, None, data.states()[0], actions, strict=True, label="too hot")
     with warnings.catch_warnings(record=True) as caught:     # the training actions are in range
         warnings.simplefilter("always", OutOfRangeWarning)
-        rollout(model, data.states()[0], data.actions()[:200])
+        rollout(model, None, data.states()[0], data.actions()[:200])
     # (the model's own states may still drift outside what it saw: that warns about x or u)
     assert not [w for w in caught if " V = " in str(w.message) or " dt = " in str(w.message)]

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 import torch
 
-from surrogate.evaluate import evaluate, use_setup
-from surrogate.models import KINDS
-from surrogate.rollout import rollout
-from surrogate.train import TrainConfig, train
-from tests.surrogate.conftest import QUICK
-from workflows.errors import InputError
+from deapull.errors import InputError
+from deapull.surrogate.evaluate import evaluate
+from deapull.surrogate.models import KINDS
+from deapull.surrogate.rollout import rollout
+from deapull.surrogate.train import TrainConfig, train
+from tests.conftest import QUICK
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", list(KINDS))
 def test_training_lowers_the_loss(trained, kind):
     result = trained(kind)
     first, last = result.history[0], result.history[result.best_epoch - 1]
@@ -66,20 +66,20 @@ def test_cuda_without_gpu_is_refused():
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", list(KINDS))
 def test_cuda_training_and_batched_rollout_match_the_cpu(sweep, kind):
     """On a GPU: training runs on CUDA and lowers the loss, and a batched torch rollout on
     CUDA gives the CPU's rollout (same weights) to round-off."""
     result = train(TrainConfig(kind=kind, device="cuda", **QUICK[kind]), [sweep["C1"]], sweep["C2"])
     assert result.history[-1]["train_loss"] < result.history[0]["train_loss"]
     model, data = result.model, sweep["C1"]
-    use_setup(model, data)
+    phi = model.phi_of(data)
     s0, actions = data.states()[0], data.actions()
     with torch.inference_mode():
-        cpu = rollout(model, s0, actions, engine="torch").states[0]
+        cpu = rollout(model, phi, s0, actions, engine="torch").states[0]
         model.to("cuda")
         batch = 64
-        gpu = rollout(model, np.tile(s0, (batch, 1)), np.tile(actions, (batch, 1, 1)), engine="torch").states
+        gpu = rollout(model, phi, np.tile(s0, (batch, 1)), np.tile(actions, (batch, 1, 1)), engine="torch").states
     assert gpu.device.type == "cuda" and gpu.shape[0] == batch
     gpu = gpu.cpu()
     assert torch.allclose(gpu[0], gpu[-1], rtol=0, atol=0, equal_nan=True)

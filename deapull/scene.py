@@ -1,0 +1,505 @@
+"""Scene files: TOML → validated, frozen dataclasses.
+
+A scene says what the simulation contains. Every quantity is SI with its unit in
+the key's name (``coin.density_kg_m3``, ``load.voltage_max_V``). Sections that a
+scene does not have (``coin``, ``stop``) are ``None`` and the solver assembles
+nothing for them.
+
+Validation happens here, before any meshing or solving: unknown or missing keys,
+wrong types, NaN/inf, out-of-range values and unknown setups all raise
+:class:`SceneError`, whose message names the key, the value and what is allowed.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import tomli_w
+
+from deapull import protocol as protocols
+from deapull.errors import InputError
+
+SCENE_DIR = Path(__file__).parent / "scenes"
+
+
+class SceneError(InputError):
+    """Invalid scene input; the message names the key, the value and what is allowed."""
+
+
+# --- field helpers -----------------------------------------------------------------
+
+def _num(default, lo=None, hi=None, lo_open=True, hi_open=False, doc="", integer=False):
+    """A numeric field with an allowed range; ``lo_open`` means strictly greater."""
+    return field(default=default, metadata=dict(kind="int" if integer else "float", lo=lo, hi=hi,
+                                                lo_open=lo_open, hi_open=hi_open, doc=doc))
+
+
+def _pos(default, doc=""):
+    return _num(default, lo=0.0, doc=doc)
+
+
+def _nonneg(default, doc=""):
+    return _num(default, lo=0.0, lo_open=False, doc=doc)
+
+
+def _choice(default, choices, doc=""):
+    return field(default=default, metadata=dict(kind="choice", choices=tuple(choices), doc=doc))
+
+
+def _text(default, doc=""):
+    return field(default=default, metadata=dict(kind="str", doc=doc))
+
+
+def _flag(default, doc=""):
+    return field(default=default, metadata=dict(kind="bool", doc=doc))
+
+
+def _floats(doc=""):
+    return field(default=(), metadata=dict(kind="floats", doc=doc))
+
+
+REQUIRED = object()
+
+
+# --- sections ----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SceneInfo:
+    name: str = _text(REQUIRED, "scene name")
+    description: str = _text(REQUIRED, "one-line description")
+    default_setup: str = _text("", "setup used when --setup is not given (empty: none)")
+
+
+@dataclass(frozen=True)
+class DEA:
+    length_m: float = _pos(0.040, "length along x, clamp at x = 0, free end at x = -length")
+    width_m: float = _pos(0.020, "width along z")
+    active_thickness_m: float = _pos(0.002, "thickness of the active stack (y)")
+    passive_thickness_m: float = _pos(0.001, "thickness of the passive layer (y)")
+    film_thickness_m: float = _pos(10e-6, "thickness of one dielectric film; field = V / film")
+    youngs_modulus_Pa: float = _pos(0.56e6, "Young's modulus of both layers")
+    poisson_ratio: float = _num(0.5, lo=-1.0, hi=0.5, doc="Poisson ratio, in (-1, 0.5]; 0.5 = incompressible")
+    density_kg_m3: float = _pos(1100.0, "elastomer density")
+    relative_permittivity: float = _num(4.7, lo=1.0, lo_open=False, doc="relative permittivity of the films")
+    material: str = _choice("neo_hookean", ("neo_hookean", "gent"), "hyperelastic law")
+    gent_locking_I1: float = _pos(100.0, "Gent J_m: I1 - 3 at locking (material = gent)")
+    active_side: str = _choice("top", ("top", "bottom"), "which layer carries the electrodes")
+    clamp_gap_m: float = _nonneg(0.0, "height of the clamped underside above the coin's / stop's top face; "
+                                      "gravity sag closes it (pre-load)")
+
+
+@dataclass(frozen=True)
+class Coin:
+    radius_m: float = _pos(0.005, "coin radius")
+    height_m: float = _pos(0.00225, "coin height (y); the DEA rests on its top face")
+    density_kg_m3: float = _pos(7700.0, "coin density; mass = mesh volume x density")
+    edge_radius_m: float = _pos(0.0003, "fillet radius of the coin's top rim")
+    mu_t: float = _nonneg(0.55, "Coulomb friction DEA-coin (top)")
+    mu_b: float = _nonneg(0.20, "Coulomb friction coin-ground (bottom)")
+    center_from_tip_m: float = _num(0.003, doc="x distance from the DEA's free end to the coin centre, "
+                                               "toward the clamp (< radius_m: the tip rests on the top face)")
+
+
+@dataclass(frozen=True)
+class Stop:
+    height_m: float = _pos(0.00225, "height of the fixed rigid stop's top face (y)")
+    radius_m: float = _pos(0.005, "radius of the stop's disc footprint")
+    center_from_tip_m: float = _num(0.003, doc="x distance from the free end to the stop centre")
+    edge_radius_m: float = _pos(0.0003, "fillet radius of the stop's top rim")
+    mu_t: float = _nonneg(0.55, "Coulomb friction DEA-stop")
+
+
+@dataclass(frozen=True)
+class Contact:
+    penalty_scale: float = _pos(10.0, "normal penalty = penalty_scale * E / h_cell (N/m^3)")
+    slip_rate_regularisation_m_s: float = _pos(1e-4, "slip rate at which regularised Coulomb friction "
+                                                      "reaches ~70 % of mu*p")
+
+
+@dataclass(frozen=True)
+class Load:
+    """The voltage protocol (:mod:`deapull.protocol`): each protocol takes only its own keys."""
+    protocol: str = _choice("ramp", protocols.NAMES, "voltage protocol V(t) (deapull/protocol.py): "
+                                                     + ", ".join(protocols.NAMES))
+    voltage_max_V: float = _nonneg(400.0, "largest voltage: every protocol's V(t) lies in [0, voltage_max_V]")
+    end_time_s: float = _pos(1.0, "end of the simulation")
+    ramp_time_s: float = _pos(1.0, "ramp, release, triangle, ramp_hold_ramp: duration of the (first) ramp")
+    hold_time_s: float = _nonneg(0.5, "ramp_hold_ramp: hold at voltage_max_V after the first ramp")
+    voltage_end_V: float = _nonneg(0.0, "ramp_hold_ramp: voltage at the end of the second ramp (<= voltage_max_V)")
+    ramp_down_time_s: float = _pos(0.5, "ramp_hold_ramp: duration of the second ramp")
+    period_s: float = _pos(1.0, "sine: period of V_max (1 - cos(2 pi t / period)) / 2")
+    table_t_s: tuple = _floats("table: times of the points (s), from 0, strictly increasing")
+    table_V: tuple = _floats("table: voltages of the points (V), in [0, voltage_max_V]")
+    table_csv: str = _text("", "table: CSV file of (t_s, V) rows instead of table_t_s/table_V (relative paths: "
+                               "from the scene file's folder)")
+    seed: int = _num(0, lo=0, lo_open=False, integer=True, doc="random: seed of the generator")
+    rate_max_V_s: float = _num(1000.0, lo=protocols.RATE_RANGE[0], hi=protocols.RATE_RANGE[1], lo_open=False,
+                               doc="random: bound of |dV/dt| (V/s)")
+    segment_min_s: float = _pos(0.05, "random: shortest segment (s)")
+    segment_max_s: float = _pos(0.2, "random: longest segment (s)")
+
+    def keys(self) -> tuple[str, ...]:
+        """The keys this protocol takes (the others are refused in a scene file)."""
+        return protocols.COMMON + protocols.KEYS[self.protocol]
+
+
+@dataclass(frozen=True)
+class Time:
+    dt_max_s: float = _pos(1.0 / 720.0, "largest step; 1 s gives >= 700 steps when <= 1/700")
+    dt_min_s: float = _pos(1e-7, "smallest step before the solve is declared failed")
+    dt_initial_s: float = _pos(1e-3, "first step")
+    growth: float = _num(1.5, lo=1.0, lo_open=False, doc="step growth factor after an easy solve")
+    cutback: float = _num(0.5, lo=0.0, hi=1.0, hi_open=True, doc="step factor after a failed solve")
+    max_cutbacks: int = _num(10, lo=0, lo_open=False, integer=True, doc="cut-backs allowed in one step")
+
+
+@dataclass(frozen=True)
+class Solver:
+    formulation: str = _choice("mixed", ("mixed", "displacement"), "Taylor-Hood u-p or pure displacement")
+    electrostatics: str = _choice("energy", ("energy", "coupled"),
+                                  "prescribed nominal field, or solve Gauss's law for the potential")
+    newton_rtol: float = _pos(1e-8, "relative residual tolerance")
+    newton_atol: float = _pos(1e-8, "absolute residual tolerance")
+    newton_max_it: int = _num(40, lo=0, integer=True, doc="Newton iterations per attempt")
+    jacobian_reuse_ratio: float = _num(0.3, lo=0.0, hi=1.0, lo_open=False, hi_open=True,
+                                       doc="keep the factorised Jacobian while each Newton iteration cuts the "
+                                           "residual by this factor; 0 = full Newton")
+    quadrature_degree: int = _num(4, lo=0, integer=True, doc="quadrature degree of all integrals")
+    coupling_tol_m: float = _pos(1e-10, "coin position change at which the coin-DEA iteration has converged")
+    coupling_max_it: int = _num(30, lo=0, integer=True, doc="coin-DEA iterations per step")
+
+
+@dataclass(frozen=True)
+class Mesh:
+    cell: str = _choice("hexahedron", ("hexahedron", "tetrahedron"), "cell type of the DEA mesh")
+    order: int = _num(2, lo=1, hi=2, lo_open=False, integer=True, doc="polynomial degree of u (pressure: order-1)")
+    level: int = _num(0, lo=0, lo_open=False, hi=4, integer=True, doc="uniform refinement: divisions x 2^level")
+    n_length: int = _num(16, lo=0, integer=True, doc="divisions along the length (x)")
+    n_width: int = _num(2, lo=0, integer=True, doc="divisions across the width (z)")
+    n_active: int = _num(1, lo=0, integer=True, doc="divisions through the active stack")
+    n_passive: int = _num(1, lo=0, integer=True, doc="divisions through the passive layer")
+    coin_size_m: float = _pos(1.5e-3, "target tetrahedron size of the coin mesh")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A whole scene; ``coin``/``stop`` are None when absent."""
+    scene: SceneInfo
+    dea: DEA
+    load: Load
+    time: Time
+    solver: Solver
+    mesh: Mesh
+    contact: Contact
+    gravity_m_s2: float = _nonneg(9.8, "gravitational acceleration along -y")
+    coin: Optional[Coin] = None
+    stop: Optional[Stop] = None
+    setup: str = ""
+    source_text: str = field(default="", compare=False, repr=False)
+
+    @property
+    def has_obstacle(self) -> bool:
+        return self.coin is not None or self.stop is not None
+
+    def to_dict(self) -> dict:
+        """The resolved scene as a TOML-ready dict (no setups table)."""
+        out: dict[str, Any] = {"gravity_m_s2": self.gravity_m_s2}
+        for name, cls in SECTIONS.items():
+            sec = getattr(self, name)
+            if sec is not None:
+                out[name] = dataclasses.asdict(sec)
+        out["scene"]["default_setup"] = ""  # setups are already applied
+        load = out["load"]
+        load["table_t_s"], load["table_V"] = list(load["table_t_s"]), list(load["table_V"])
+        out["load"] = {k: v for k, v in load.items() if k in self.load.keys() and not (k == "table_csv" and not v)}
+        return out
+
+    def to_toml(self) -> str:
+        """The resolved scene as TOML; loading it again gives the same scene."""
+        head = f"# resolved scene {self.scene.name!r}, setup {self.setup!r}\n" if self.setup else ""
+        return head + tomli_w.dumps(self.to_dict())
+
+
+SECTIONS = {"scene": SceneInfo, "dea": DEA, "coin": Coin, "stop": Stop, "contact": Contact, "load": Load,
+            "time": Time, "solver": Solver, "mesh": Mesh}
+OPTIONAL_SECTIONS = ("coin", "stop")
+TOP_LEVEL = {f.name: f for f in dataclasses.fields(Scene) if f.name == "gravity_m_s2"}
+
+
+# --- validation ----------------------------------------------------------------------
+
+def _allowed(meta) -> str:
+    kind = meta["kind"]
+    if kind == "choice":
+        return "one of " + ", ".join(repr(c) for c in meta["choices"])
+    if kind == "floats":
+        return "a list of finite numbers"
+    if kind in ("str", "bool"):
+        return f"a {kind}"
+    parts = ["an integer" if kind == "int" else "a finite number"]
+    if meta["lo"] is not None:
+        parts.append(f"{'>' if meta['lo_open'] else '>='} {meta['lo']:g}")
+    if meta["hi"] is not None:
+        parts.append(f"{'<' if meta['hi_open'] else '<='} {meta['hi']:g}")
+    return " ".join([parts[0]] + (["that is " + " and ".join(parts[1:])] if len(parts) > 1 else []))
+
+
+def _check_value(key: str, value, meta):
+    kind = meta["kind"]
+    bad = SceneError(f"{key} = {value!r}: expected {_allowed(meta)}")
+    if kind == "choice":
+        if value not in meta["choices"]:
+            raise bad
+        return value
+    if kind == "str":
+        if not isinstance(value, str):
+            raise bad
+        return value
+    if kind == "floats":
+        if not isinstance(value, (list, tuple)) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
+            raise bad
+        return tuple(float(v) for v in value)
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise bad
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise bad
+    if kind == "int":
+        if isinstance(value, float) and not value.is_integer():
+            raise bad
+        value = int(value)
+    else:
+        value = float(value)
+        if not math.isfinite(value):
+            raise bad
+    lo, hi = meta["lo"], meta["hi"]
+    if lo is not None and (value <= lo if meta["lo_open"] else value < lo):
+        raise bad
+    if hi is not None and (value >= hi if meta["hi_open"] else value > hi):
+        raise bad
+    return value
+
+
+def _build_section(name: str, cls, data) -> Any:
+    if not isinstance(data, dict):
+        raise SceneError(f"[{name}] must be a table, got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise SceneError(f"{name}.{unknown[0]}: unknown key; allowed keys in [{name}]: {', '.join(fields)}")
+    kwargs = {}
+    for fname, f in fields.items():
+        key = f"{name}.{fname}"
+        if fname in data:
+            kwargs[fname] = _check_value(key, data[fname], f.metadata)
+        elif f.default is REQUIRED:
+            raise SceneError(f"{key}: missing; expected {_allowed(f.metadata)}")
+    return cls(**kwargs)
+
+
+def _check_load(raw: dict, base_dir: Path | None, explicit=frozenset()) -> dict:
+    """Refuse ``[load]`` keys the chosen protocol does not take; read a table's CSV file.
+
+    ``explicit``: the keys a setup or ``--set`` assigned. When they switch the protocol
+    (``--set load.protocol='sine'`` on a ramp scene), the file's keys of the old protocol
+    are dropped; a key that the file and the protocol disagree on, or that was assigned
+    for another protocol, is an error.
+    """
+    raw = dict(raw)
+    name = raw.get("protocol", "ramp")
+    if name not in protocols.KEYS:
+        return raw                          # the choice check names the allowed protocols
+    allowed = protocols.COMMON + protocols.KEYS[name]
+    known = {f.name for f in dataclasses.fields(Load)}
+    switched = "protocol" in explicit
+    for key in list(raw):
+        if key in known and key not in allowed:
+            if switched and key not in explicit:
+                del raw[key]                # a key of the file's own protocol
+                continue
+            raise SceneError(f"load.{key}: not a key of load.protocol = {name!r}; its keys: {', '.join(allowed)}")
+    if name == "table":
+        path = raw.get("table_csv", "")
+        inline = "table_t_s" in raw or "table_V" in raw
+        if path and inline:
+            raise SceneError("load.table_csv: give either load.table_csv or load.table_t_s and load.table_V, "
+                             "not both")
+        if not path and not inline:
+            raise SceneError("load.table_t_s: missing; load.protocol = 'table' needs load.table_t_s and "
+                             "load.table_V, or load.table_csv")
+        if path:
+            if not isinstance(path, str):
+                raise SceneError(f"load.table_csv = {path!r}: expected a str (a CSV file path)")
+            csv_path = Path(path)
+            if not csv_path.is_absolute() and base_dir is not None and (base_dir / csv_path).is_file():
+                csv_path = base_dir / csv_path
+            try:
+                raw["table_t_s"], raw["table_V"] = protocols.read_table_csv(csv_path)
+            except protocols.ProtocolError as err:
+                raise SceneError(str(err)) from None
+            del raw["table_csv"]            # the resolved scene carries the points themselves
+    return raw
+
+
+def _check_protocol(load: Load) -> None:
+    name = load.protocol
+    if name == "ramp_hold_ramp" and load.voltage_end_V > load.voltage_max_V:
+        raise SceneError(f"load.voltage_end_V = {load.voltage_end_V!r}: must be <= load.voltage_max_V "
+                         f"= {load.voltage_max_V!r}")
+    if name == "random" and load.segment_min_s > load.segment_max_s:
+        raise SceneError(f"load.segment_min_s = {load.segment_min_s!r}: must be <= load.segment_max_s "
+                         f"= {load.segment_max_s!r}")
+    if name == "table":
+        try:
+            protocols.check_table(load.table_t_s, load.table_V, load.voltage_max_V)
+        except protocols.ProtocolError as err:
+            raise SceneError(str(err)) from None
+
+
+def _check_consistency(scene: Scene) -> None:
+    _check_protocol(scene.load)
+    d = scene.dea
+    if d.film_thickness_m > d.active_thickness_m:
+        raise SceneError(f"dea.film_thickness_m = {d.film_thickness_m!r}: must be <= dea.active_thickness_m "
+                         f"= {d.active_thickness_m!r}")
+    for name in OPTIONAL_SECTIONS:
+        ob = getattr(scene, name)
+        if ob is not None and ob.edge_radius_m >= min(ob.radius_m, ob.height_m):
+            raise SceneError(f"{name}.edge_radius_m = {ob.edge_radius_m!r}: must be < {name}.radius_m and "
+                             f"< {name}.height_m")
+    if scene.coin is not None and scene.stop is not None:
+        raise SceneError("[coin] and [stop]: a scene has at most one of them")
+    if scene.load.end_time_s < scene.time.dt_max_s:
+        raise SceneError(f"load.end_time_s = {scene.load.end_time_s!r}: must be >= time.dt_max_s")
+    if scene.time.dt_min_s > scene.time.dt_max_s:
+        raise SceneError(f"time.dt_min_s = {scene.time.dt_min_s!r}: must be <= time.dt_max_s "
+                         f"= {scene.time.dt_max_s!r}")
+    if scene.solver.electrostatics == "coupled" and scene.solver.formulation != "mixed":
+        raise SceneError("solver.electrostatics = 'coupled': needs solver.formulation = 'mixed'")
+    if scene.dea.poisson_ratio == 0.5 and scene.solver.formulation == "displacement":
+        raise SceneError("solver.formulation = 'displacement': not allowed with dea.poisson_ratio = 0.5 "
+                         "(use 'mixed' or a Poisson ratio < 0.5)")
+
+
+def _parse_value(text: str):
+    """Parse a ``--set`` value as TOML (numbers, booleans, quoted strings); bare words are strings."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_override(data: dict, assignment: str) -> None:
+    """Apply one ``section.key=value`` (or ``key=value`` for top-level keys) to raw scene data."""
+    if "=" not in assignment:
+        raise SceneError(f"--set {assignment!r}: expected section.key=value")
+    path, text = assignment.split("=", 1)
+    _assign(data, path.strip(), _parse_value(text.strip()))
+
+
+def _assign(data: dict, path: str, value) -> None:
+    parts = path.split(".")
+    if len(parts) == 1:
+        if parts[0] not in TOP_LEVEL:
+            raise SceneError(f"{parts[0]}: unknown key; top-level keys: {', '.join(TOP_LEVEL)}; "
+                             f"others are section.key ({', '.join(SECTIONS)})")
+        data[parts[0]] = value
+        return
+    if len(parts) != 2 or parts[0] not in SECTIONS:
+        raise SceneError(f"{path}: unknown key; expected section.key with section one of {', '.join(SECTIONS)}")
+    data.setdefault(parts[0], {})[parts[1]] = value
+
+
+def from_dict(raw: dict, setup: str | None = None, overrides=(), source_text: str = "",
+              base_dir: Path | None = None) -> Scene:
+    """Validate raw TOML data (plus a setup and ``--set`` overrides) into a :class:`Scene`.
+
+    ``base_dir``: the scene file's folder (relative paths in the scene are read from there).
+    """
+    data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in raw.items()}
+    setups = data.pop("setups", {})
+    info = data.get("scene", {})
+    if setup is None and isinstance(info, dict):
+        setup = info.get("default_setup") or None
+    if setup:
+        if setup not in setups:
+            allowed = ", ".join(setups) if setups else "none (this scene has no setups)"
+            raise SceneError(f"setup = {setup!r}: unknown setup; allowed: {allowed}")
+        for key, value in setups[setup].items():
+            _assign(data, key, value)
+    for assignment in overrides:
+        apply_override(data, assignment)
+    explicit = {k.split("=", 1)[0].strip() for k in overrides} | set(setups.get(setup, {}) if setup else ())
+    explicit_load = frozenset(k.split(".", 1)[1] for k in explicit if k.startswith("load."))
+    allowed_top = set(SECTIONS) | set(TOP_LEVEL)
+    unknown = sorted(set(data) - allowed_top)
+    if unknown:
+        raise SceneError(f"{unknown[0]}: unknown key; allowed: {', '.join(sorted(allowed_top))}, setups")
+    if isinstance(data.get("load"), dict):
+        data["load"] = _check_load(data["load"], base_dir, explicit_load)
+    kwargs = {}
+    for name, cls in SECTIONS.items():
+        if name in data:
+            kwargs[name] = _build_section(name, cls, data[name])
+        elif name in OPTIONAL_SECTIONS:
+            kwargs[name] = None
+        elif name == "scene":
+            raise SceneError("scene.name: missing; every scene needs a [scene] table with name and description")
+        else:
+            kwargs[name] = cls()
+    if "gravity_m_s2" in data:
+        kwargs["gravity_m_s2"] = _check_value("gravity_m_s2", data["gravity_m_s2"], TOP_LEVEL["gravity_m_s2"].metadata)
+    scene = Scene(**kwargs, setup=setup or "", source_text=source_text)
+    _check_consistency(scene)
+    return scene
+
+
+def resolve_path(name_or_path: str | Path) -> Path:
+    """A shipped scene name (``coin_pull``) or a path to a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise SceneError(f"scene = {str(name_or_path)!r}: no such file")
+        return p
+    candidate = SCENE_DIR / f"{name_or_path}.toml"
+    if not candidate.is_file():
+        raise SceneError(f"scene = {str(name_or_path)!r}: unknown scene; shipped scenes: {', '.join(list_scenes())}")
+    return candidate
+
+
+def load(name_or_path: str | Path, setup: str | None = None, overrides=()) -> Scene:
+    """Load, resolve and validate a scene by shipped name or path."""
+    path = resolve_path(name_or_path)
+    text = path.read_text()
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: not valid TOML ({err})") from None
+    return from_dict(raw, setup=setup, overrides=overrides, source_text=text, base_dir=path.parent)
+
+
+def setups_of(name_or_path: str | Path) -> list[str]:
+    """Setup names defined by a scene file (empty for scenes without setups)."""
+    raw = tomllib.loads(resolve_path(name_or_path).read_text())
+    return list(raw.get("setups", {}))
+
+
+def list_scenes() -> list[str]:
+    return sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
+
+
+def describe_keys() -> list[tuple[str, str, str, str]]:
+    """(key, default, allowed, description) for every scene key — the README's table."""
+    rows = [("gravity_m_s2", "9.8", _allowed(TOP_LEVEL["gravity_m_s2"].metadata),
+             TOP_LEVEL["gravity_m_s2"].metadata["doc"])]
+    for name, cls in SECTIONS.items():
+        for f in dataclasses.fields(cls):
+            default = "required" if f.default is REQUIRED else repr(f.default)
+            rows.append((f"{name}.{f.name}", default, _allowed(f.metadata), f.metadata["doc"]))
+    return rows

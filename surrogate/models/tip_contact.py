@@ -1,0 +1,207 @@
+"""Kind ``f-coulomb``: f = d∘m grounded in the FEM's contact mechanics (the tip-contact model).
+
+m (MLP 1 → 3×128 ReLU → 2) maps the voltage to the DEA tip's stroke X(V) and pressing
+force Fy(V); d moves the coin between two Coulomb contacts — the tip dragging it with the
+FEM's rate-regularised friction μ_t, the ground holding it with exact stick/slip μ_b —
+with φ = (m_c, μ_b, μ_t). No V^T is needed.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from deapull.errors import InputError
+from deapull.surrogate.data import Transitions, require_tip_contact
+from deapull.surrogate.models.base import (InputRange, NativeKernel, Normalisation, Surrogate, mlp, mlp_params,
+                                           state_loss)
+from deapull.surrogate.models.registry import register
+from deapull.surrogate.phi import Phi
+
+
+def regularised_slip(v: torch.Tensor, eps: float) -> torch.Tensor:
+    """The FEM's rate-regularised Coulomb factor s/√(s² + ε²) ∈ (-1, 1) of a slip rate s."""
+    return v / torch.sqrt(v * v + eps * eps)
+
+
+def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps: float, iterations: int = 40):
+    """d of the tip-contact model: one backward-Euler step of the coin between two contacts.
+
+    The coin (mass m_c, velocity u) is dragged by the DEA tip moving at w with the FEM's
+    rate-regularised friction T = μ_t Fy (w - u')/√((w - u')² + ε²) and held by the ground
+    with exact Coulomb stick/slip, |B| ≤ μ_b N:
+
+        m_c (u' - u) / Δt = T(u') - B,   B ∈ μ_b N Sgn(u').
+
+    The right side decreases in u', so the step has one solution: the coin sticks (u' = 0)
+    when the tip's pull at u' = 0 plus the coin's momentum stays inside the ground's cone;
+    otherwise the sign of u' is known and a bracketed Newton solve finds it. The solve runs
+    without gradients, then one Newton correction with them gives the gradients of the
+    exact root (implicit differentiation) with respect to every input.
+
+    Parameters
+    ----------
+    u, w : torch.Tensor
+        Coin velocity before the step and tip velocity over it (m/s).
+    cap_t, cap_b : torch.Tensor
+        μ_t Fy and μ_b N (N), non-negative.
+    mass_kg, dt : torch.Tensor or float
+    eps : float
+        Slip-rate regularisation ε (m/s), > 0.
+    iterations : int
+        Most Newton/bisection iterations (they stop once no row changes; a handful suffice).
+
+    Returns
+    -------
+    (u_next, T) : tuple of torch.Tensor
+        The coin velocity after the step and the tip's force on the coin along x (N).
+    """
+    c = mass_kg / dt
+    tip_at_rest_coin = cap_t * regularised_slip(w, eps)
+    ground_reaction = tip_at_rest_coin + c * u
+    stuck = ground_reaction.abs() <= cap_b
+    sign = torch.where(ground_reaction > 0, torch.ones_like(u), -torch.ones_like(u))
+
+    def residual(v):
+        return c * (v - u) - cap_t * regularised_slip(w - v, eps) + sign * cap_b
+
+    def slope(v):
+        return c + cap_t * eps * eps / ((w - v) ** 2 + eps * eps) ** 1.5
+
+    with torch.no_grad():
+        reach = (cap_t + cap_b) / c
+        zero = torch.zeros_like(ground_reaction)
+        # a stuck row gets the empty bracket [0, 0]: it needs no solve
+        lo = torch.where((sign > 0) | stuck, zero, torch.minimum(u - reach, zero))
+        hi = torch.where((sign < 0) | stuck, zero, torch.maximum(u + reach, zero))
+        # start where the tip's friction balances the ground's alone (inertia neglected)
+        ratio = torch.clamp(sign * cap_b / torch.clamp(cap_t, min=1e-300), -0.999999, 0.999999)
+        v = torch.minimum(torch.maximum(w - eps * ratio / torch.sqrt(1 - ratio * ratio), lo), hi)
+        change = hi - lo
+        for _ in range(iterations):
+            r = residual(v)
+            lo, hi = torch.where(r < 0, v, lo), torch.where(r >= 0, v, hi)
+            step = r / slope(v)
+            # bisect where Newton leaves the bracket or does not halve its last change
+            bisect = (v - step < lo) | (v - step > hi) | (2 * step.abs() > change.abs())
+            v, previous = torch.where(bisect, 0.5 * (lo + hi), v - step), v
+            change = v - previous
+            if bool(torch.all(change.abs() <= 1e-13 * (v.abs() + eps))):
+                break
+    v = v - residual(v) / slope(v).detach()
+    u_next = torch.where(stuck, torch.zeros_like(v), v)
+    force = torch.where(stuck, tip_at_rest_coin + 0 * v, cap_t * regularised_slip(w - u_next, eps))
+    return u_next, force
+
+
+@register
+class TipContactModel(Surrogate):
+    """f = d∘m grounded in the FEM's contact mechanics (kind ``f-coulomb``).
+
+    m (θ): an MLP 1 → ``layers``×``hidden`` ReLU → 2 of the voltage alone gives the DEA's
+    material response at its tip: the stroke X(V) of the tip's contact point along x
+    (X(0) = 0) and the pressing force Fy(V). In the FEM both depend on the voltage and hardly
+    on the coin (Fy at equal V agrees across the eight setups to 0.1 %); feeding m the
+    coin's state would tie it to the training coin's path instead.
+
+    d (φ = (m_c, μ_b, μ_t)): the tip moves at w = (X(V_t+1) - X(V_t))/Δt and drags the coin
+    with the FEM's rate-regularised Coulomb friction (ε_v from the dataset); the ground holds
+    it with exact Coulomb stick/slip (:func:`tip_coin_step`). The onset of sliding, the lag
+    of the coin behind the tip and the effect of a heavier or rougher coin all come out of d;
+    z = (Fx, Fy) with Fx the friction the tip exerts.
+
+    The rollout memory is (V, X) of the previous step; a rollout starts with the DEA at 0 V.
+
+    Parameters
+    ----------
+    norm, input_range
+        See :class:`~deapull.surrogate.models.base.Surrogate`.
+    hidden, layers : int
+    gravity_m_s2 : float
+    slip_rate_reg_m_s : float
+        ε_v of the tip–coin friction (the FEM scene's ``contact.slip_rate_regularisation_m_s``).
+    iterations : int
+        Iterations of the step's root solve.
+    """
+
+    kind = "f-coulomb"
+    label = "f (tip contact)"
+    physics = True
+    phi_fields = ("mass_kg", "mu_b", "mu_t")
+
+    def __init__(self, norm: Normalisation, input_range: InputRange, hidden: int = 128, layers: int = 3,
+                 gravity_m_s2: float = 9.8, slip_rate_reg_m_s: float = 1e-4, iterations: int = 40):
+        if not slip_rate_reg_m_s > 0:
+            raise ValueError(f"slip_rate_reg_m_s must be positive, got {slip_rate_reg_m_s}")
+        hparams = {"hidden": hidden, "layers": layers, "gravity_m_s2": gravity_m_s2,
+                   "slip_rate_reg_m_s": slip_rate_reg_m_s, "iterations": iterations}
+        super().__init__(norm, input_range, hparams)
+        self.material = mlp(1, hidden, layers, 2)
+        self.gravity_m_s2, self.slip_rate_reg_m_s, self.iterations = gravity_m_s2, slip_rate_reg_m_s, iterations
+
+    @classmethod
+    def phi_of(cls, data) -> Phi:
+        """m_c, μ_b and μ_t of ``data``'s coin; refuses a dataset without μ_t or ε_v."""
+        require_tip_contact(data)
+        return Phi.of(data)
+
+    @classmethod
+    def training_hparams(cls, config, train_sets: list) -> dict:
+        for d in train_sets:
+            require_tip_contact(d)
+        eps = {d.slip_rate_reg_m_s for d in train_sets}
+        if len(eps) != 1:
+            raise InputError(f"training setups were made with different friction regularisations {sorted(eps)} m/s; "
+                             "f-coulomb needs one")
+        return {"hidden": config.hidden, "layers": config.layers, "gravity_m_s2": train_sets[0].gravity_m_s2,
+                "slip_rate_reg_m_s": eps.pop()}
+
+    def material_response(self, V: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """m: the tip's stroke X(V) (m, X(0) = 0) and pressing force Fy(V) (N)."""
+        scaled = torch.stack([V, torch.zeros_like(V)], dim=-1).unsqueeze(-1)
+        out = self.material((scaled - self.in_mean[2]) / self.in_std[2])
+        stroke = self.s_std[0] * (out[..., 0, 0] - out[..., 1, 0])
+        return stroke, self.z_mean[1] + self.z_std[1] * out[..., 0, 1]
+
+    def init_memory(self, s0, a0):
+        """(V, X) before the first step: the DEA at rest, 0 V."""
+        return torch.zeros(s0.shape[:-1] + (2,), dtype=s0.dtype, device=s0.device)
+
+    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi):
+        """d: the next state and z = (Fx, Fy), in float64, from the tip's stroke over the step."""
+        s, a = s.double(), a.double()
+        phi = self._phi(phi, s, torch.float64)
+        dt = a[..., 1]
+        fy = fy.double()
+        normal = torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
+        w = (stroke.double() - stroke_prev.double()) / dt
+        u_next, fx = tip_coin_step(s[..., 1], w, phi.mu_t * torch.clamp(fy, min=0.0), phi.mu_b * normal,
+                                   phi.mass_kg, dt, self.slip_rate_reg_m_s, self.iterations)
+        return torch.stack([s[..., 0] + dt * u_next, u_next], dim=-1), torch.stack([fx, fy], dim=-1)
+
+    def forward(self, s, a, v_prev, phi: Phi):
+        """f(s, a; θ, φ) → (s', z) from the voltage ``v_prev`` before the step; ``phi`` is one
+        coin or one per row."""
+        stroke, fy = self.material_response(torch.stack([v_prev, a[..., 0]], dim=-1))
+        s_next, z = self.dynamics(s, a, stroke[..., 0], stroke[..., 1], fy[..., 1], phi)
+        return s_next.to(s.dtype), z.to(s.dtype)
+
+    def step(self, s, a, memory=None, phi: Phi | None = None):
+        if memory is None:
+            memory = self.init_memory(s, a)
+        stroke, fy = self.material_response(a[..., 0])
+        s_next, z = self.dynamics(s, a, memory[..., 1], stroke, fy, phi)
+        return s_next.to(s.dtype), z.to(s.dtype), torch.stack([a[..., 0], stroke.to(s.dtype)], dim=-1)
+
+    def training_loss(self, batch: Transitions) -> torch.Tensor:
+        s_next, z = self(batch.s, batch.a, batch.v_prev, batch.phi)
+        return state_loss(self, s_next, z, batch)
+
+    def native_kernel(self, phi: Phi) -> NativeKernel:
+        """``deapull_rollout_tip``: norm = V mean and scale, x scale, Fy mean and scale;
+        phys = m_c, μ_b, μ_t, g, ε_v, iterations."""
+        n_layers, sizes, params = mlp_params(self.material)
+        norm = np.array([self.in_mean[2].item(), self.in_std[2].item(), self.s_std[0].item(),
+                         self.z_mean[1].item(), self.z_std[1].item()])
+        phys = np.array([phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"), self.gravity_m_s2,
+                         self.slip_rate_reg_m_s, self.iterations], dtype=np.float64)
+        return NativeKernel("deapull_rollout_tip", (n_layers, sizes, params, norm, phys), forces=True)

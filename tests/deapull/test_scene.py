@@ -1,0 +1,109 @@
+"""Scene files: every shipped scene loads; every class of bad input fails clearly."""
+import subprocess
+import sys
+
+import pytest
+
+from deapull import scene as scenes
+from deapull.workflows.cli import main
+
+
+@pytest.mark.parametrize("name", scenes.list_scenes())
+def test_every_shipped_scene_loads_and_round_trips(name, tmp_path):
+    sc = scenes.load(name)
+    path = tmp_path / "resolved.toml"
+    path.write_text(sc.to_toml())
+    again = scenes.load(path)
+    assert again.to_dict() == sc.to_dict()
+
+
+def test_setups_apply_the_design_table():
+    table = {"C1": (7700, 0.50, 0.20), "C2": (7800, 0.50, 0.20), "C3": (7700, 0.55, 0.20),
+             "C4": (7800, 0.55, 0.20), "C5": (7700, 0.50, 0.25), "C6": (7800, 0.50, 0.25),
+             "C7": (7700, 0.55, 0.25), "C8": (7800, 0.55, 0.25)}
+    assert scenes.setups_of("coin_pull") == list(table)
+    for setup, (rho, mu_t, mu_b) in table.items():
+        c = scenes.load("coin_pull", setup=setup).coin
+        assert (c.density_kg_m3, c.mu_t, c.mu_b) == (rho, mu_t, mu_b)
+    assert scenes.load("coin_pull").setup == "C3"
+
+
+def test_free_bending_has_no_coin():
+    sc = scenes.load("free_bending")
+    assert sc.coin is None and sc.stop is None and not sc.has_obstacle
+
+
+@pytest.mark.parametrize("assignment, key", [
+    ("coin.density_kg_m3=-1", "coin.density_kg_m3"),
+    ("coin.radius_m=0", "coin.radius_m"),
+    ("dea.youngs_modulus_Pa=-5", "dea.youngs_modulus_Pa"),
+    ("dea.poisson_ratio=0.6", "dea.poisson_ratio"),
+    ("dea.poisson_ratio=-1", "dea.poisson_ratio"),
+    ("dea.length_m=nan", "dea.length_m"),
+    ("load.voltage_max_V=nan", "load.voltage_max_V"),
+    ("load.voltage_max_V=inf", "load.voltage_max_V"),
+    ("coin.mu_t=-0.1", "coin.mu_t"),
+    ("coin.mu_b=-0.1", "coin.mu_b"),
+    ("dea.length_m='long'", "dea.length_m"),
+    ("mesh.cell='prism'", "mesh.cell"),
+    ("mesh.n_length=2.5", "mesh.n_length"),
+    ("coin.colour=1", "coin.colour"),
+    ("nosection.key=1", "nosection.key"),
+    ("gravity_m_s2=-9.8", "gravity_m_s2"),
+    ("dea.film_thickness_m=0.01", "dea.film_thickness_m"),
+])
+def test_bad_values_name_the_key(assignment, key):
+    with pytest.raises(scenes.SceneError, match=key.replace(".", r"\.")):
+        scenes.load("coin_pull", overrides=[assignment])
+
+
+def test_unknown_setup_lists_the_allowed_ones():
+    with pytest.raises(scenes.SceneError, match="C9.*C1, C2"):
+        scenes.load("coin_pull", setup="C9")
+    with pytest.raises(scenes.SceneError, match="no setups"):
+        scenes.load("free_bending", setup="C1")
+
+
+def test_missing_and_unknown_keys_in_a_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[scene]\ndescription = "x"\n')
+    with pytest.raises(scenes.SceneError, match=r"scene\.name: missing"):
+        scenes.load(bad)
+    bad.write_text('[scene]\nname = "x"\ndescription = "x"\n[dea]\nlenght_m = 0.02\n')
+    with pytest.raises(scenes.SceneError, match=r"dea\.lenght_m: unknown key"):
+        scenes.load(bad)
+    bad.write_text('[scene]\nname = "x"\ndescription = "x"\n[load]\nvoltage_max_V = nan\n')
+    with pytest.raises(scenes.SceneError, match=r"load\.voltage_max_V = nan"):
+        scenes.load(bad)
+    with pytest.raises(scenes.SceneError, match="no such file"):
+        scenes.load(tmp_path / "missing.toml")
+
+
+def test_cli_exits_2_with_a_message_and_no_traceback(tmp_path, capsys):
+    rc = main(["mesh", "--scene", "coin_pull", "--set", "coin.density_kg_m3=-1", "--out", str(tmp_path / "m")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "coin.density_kg_m3 = -1" in err and "Traceback" not in err
+    assert not (tmp_path / "m").exists()
+
+
+def test_console_script_exit_status(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "deapull.workflows", "show-scene", "coin_pull", "--set",
+                           "coin.mu_b=nan"], capture_output=True, text=True)
+    assert proc.returncode == 2 and "coin.mu_b" in proc.stderr and "Traceback" not in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "deapull.workflows", "show-scene", "coin_pull", "--setup", "C2"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0 and "density_kg_m3 = 7800.0" in proc.stdout
+
+
+def test_every_key_is_documented():
+    rows = scenes.describe_keys()
+    assert all(doc for *_, doc in rows)
+    assert {"coin.density_kg_m3", "load.voltage_max_V", "gravity_m_s2", "mesh.level"} <= {r[0] for r in rows}
+
+
+def test_readme_documents_every_key():
+    from tests.conftest import REPO
+    readme = (REPO / "README.md").read_text()
+    missing = [key for key, *_ in scenes.describe_keys() if f"`{key}`" not in readme]
+    assert not missing, f"README lacks {missing}"

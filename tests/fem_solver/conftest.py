@@ -1,0 +1,42 @@
+"""Shared FEM fixtures: the test-size C3 run that the sweep's committed dataset was made from."""
+from __future__ import annotations
+
+import math
+from pathlib import Path  # noqa: F401
+
+import pytest
+
+from deapull import scene as scenes
+from tests.conftest import DATA
+
+#: the test-size C3 scene of tests/data/sweep/C3.nc (regenerate:
+#: deapull solve --scene coin_pull --setup C3 --out DIR --set mesh.n_length=8 --set mesh.n_width=1
+#: --set mesh.coin_size_m=0.004)
+C3_TEST = ("mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004")
+#: the records of that run as the code before the stepping API wrote them (every variable)
+C3_REFERENCE = DATA / "sweep" / "C3.nc"
+
+
+def c3_reference() -> Path:
+    if not C3_REFERENCE.is_file():
+        pytest.fail(f"reference dataset {C3_REFERENCE} is missing")
+    return C3_REFERENCE
+
+
+def balance_bound_N(scene, num_dofs: int) -> float:
+    """Largest independent force-balance residual a converged step can leave (N).
+
+    The clamp-reaction force differs from the contact integral by the sum of the residual
+    over the free rows of one component, at most √n · ‖R‖₂ ≤ √n · atol (Cauchy–Schwarz;
+    Newton stops at ‖R‖₂ ≤ atol, the absolute tolerance binds). The balance takes
+    Fx and μ_b·Fy: (1 + μ_b) √n · atol.
+    """
+    return (1 + scene.coin.mu_b) * math.sqrt(num_dofs) * scene.solver.newton_atol
+
+
+@pytest.fixture(scope="session")
+def c3_run(tmp_path_factory):
+    """(scene, dataset path) of the test-size C3 run with today's code (~4 s)."""
+    from deapull.fem_solver.run import solve_scene
+    sc = scenes.load("coin_pull", setup="C3", overrides=C3_TEST)
+    return sc, solve_scene(sc, tmp_path_factory.mktemp("c3"), progress=False)

@@ -1,0 +1,73 @@
+"""Coulomb block: the rigid coin under a prescribed force ramp against the closed-form solution."""
+import numpy as np
+import pytest
+
+from deapull.fem_solver.coin import CoinState, coulomb_step, force_balance_residual
+
+M, MU, G = 1.36e-3, 0.2, 9.8
+
+
+def analytic(t, rate, Fy):
+    """Coin under Fx = −rate·t (toward −x): at rest until rate·t = μN, then m a = F − μN."""
+    N = M * G + Fy
+    t0 = MU * N / rate
+    tau = np.maximum(t - t0, 0.0)
+    u = -rate * tau ** 2 / (2 * M)
+    x = -rate * tau ** 3 / (6 * M)
+    return x, u, t0
+
+
+@pytest.mark.parametrize("Fy", [0.0, 5e-3])
+def test_coulomb_block_force_ramp(Fy):
+    rate, dt = 0.05, 1e-4          # N/s
+    state, xs, us, stuck_until = CoinState(), [], [], None
+    ts = np.arange(1, 6001) * dt
+    for t in ts:
+        new = coulomb_step(state, -rate * t, Fy, dt, M, MU, G)
+        if stuck_until is None and not new.stick:
+            stuck_until = t
+        assert force_balance_residual(state, new, -rate * t, Fy, dt, M, MU, G) < 1e-12
+        state = new
+        xs.append(state.x)
+        us.append(state.u)
+    x_ref, u_ref, t0 = analytic(ts, rate, Fy)
+    assert stuck_until == pytest.approx(t0, abs=2 * dt)            # starts sliding at F = μ_b N
+    assert np.max(np.abs(np.array(us) - u_ref)) < 2e-3 * np.max(np.abs(u_ref))
+    assert np.max(np.abs(np.array(xs) - x_ref)) < 5e-3 * np.max(np.abs(x_ref))
+
+
+def test_sliding_coin_decelerates_at_mu_g_and_stops():
+    state, dt = CoinState(0.0, -0.01, False), 1e-4
+    t = 0.0
+    while not state.stick:
+        state = coulomb_step(state, 0.0, 0.0, dt, M, MU, G)
+        t += dt
+    assert t == pytest.approx(0.01 / (MU * G), abs=2 * dt)
+    # backward Euler: the distance is short by at most one step at the initial speed
+    assert state.x == pytest.approx(-0.01 ** 2 / (2 * MU * G), abs=dt * 0.01)
+
+
+def test_static_friction_holds_below_the_cone():
+    state = coulomb_step(CoinState(), -0.99 * MU * M * G, 0.0, 1e-3, M, MU, G)
+    assert state.stick and state.x == 0.0 and state.u == 0.0
+
+
+def test_penetration_measure_uses_the_contact_s_rounded_rim():
+    """The nodal penetration is the contact's own signed distance: flat top, side wall and
+    fillet, so a point above the sharp corner (outside the rounded rim) is not 'inside'."""
+    from deapull.fem_solver.contact import rounded_cylinder_distance
+    top, radius, fillet = 1.0e-3, 5e-3, 3e-4
+    rho = np.array([0.0, 0.0, radius + 2e-5, radius, radius - fillet + fillet / np.sqrt(2)])
+    y = np.array([top - 4e-5, top + 1e-5, top - 1e-3, top, top - fillet + fillet / np.sqrt(2) - 1e-6])
+    d = rounded_cylinder_distance(rho, y, top, radius, fillet)
+    assert d[:3] == pytest.approx([-4e-5, 1e-5, 2e-5], abs=1e-12)
+    assert d[3] == pytest.approx((np.sqrt(2) - 1) * fillet, rel=1e-12)      # sharp corner: outside
+    assert d[4] == pytest.approx(-1e-6 / np.sqrt(2), rel=3e-3)               # just inside the fillet
+
+
+def test_static_balance_at_placement_checks_the_cone_without_inertia():
+    """dt = 0 (the t = 0 record, no step): the balance is the static cone, |Fx| ≤ μ_b N."""
+    rest = CoinState()
+    inside = force_balance_residual(rest, rest, -0.9 * MU * M * G, 0.0, 0.0, M, MU, G)
+    outside = force_balance_residual(rest, rest, -1.5 * MU * M * G, 0.0, 0.0, M, MU, G)
+    assert inside == 0.0 and outside == pytest.approx(0.5 * MU * M * G, rel=1e-12)

@@ -1,0 +1,91 @@
+"""Gmsh meshes of every shipped scene: groups, volumes, dolfinx loading (serial and MPI)."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from deapull.meshing import groups
+from deapull.meshing.build import write_mesh
+from deapull import scene as scenes
+from tests.conftest import mpirun
+
+
+@pytest.mark.parametrize("name", scenes.list_scenes())
+@pytest.mark.parametrize("cell", ["hexahedron", "tetrahedron"])
+def test_every_scene_meshes_with_its_groups(name, cell, tiny_scene, tmp_path):
+    sc = tiny_scene(name, f"mesh.cell='{cell}'")
+    path, summary = write_mesh(sc, tmp_path)
+    assert path.is_file() and json.loads((tmp_path / "mesh.json").read_text()) == summary
+    g = summary["groups"]
+    for name_ in ("active", "passive", "clamp", "electrode_top", "electrode_bottom", "dea_contact"):
+        assert g[name_]["cells"] > 0, name_
+    d = sc.dea
+    assert g["active"]["volume_m3"] == pytest.approx(d.length_m * d.width_m * d.active_thickness_m, rel=1e-9)
+    assert g["passive"]["volume_m3"] == pytest.approx(d.length_m * d.width_m * d.passive_thickness_m, rel=1e-9)
+    assert g["clamp"]["area_m2"] == pytest.approx(d.width_m * (d.active_thickness_m + d.passive_thickness_m))
+    assert summary["min_quality_detj_ratio"] > 0.1
+    if sc.coin is None:
+        assert "coin" not in g and "coin_top" not in g
+    else:
+        exact = math.pi * sc.coin.radius_m ** 2 * sc.coin.height_m
+        assert abs(g["coin"]["volume_m3"] / exact - 1) < 5e-3
+        assert g["coin_top"]["cells"] > 0 and g["coin_bottom"]["cells"] > 0
+
+
+def test_hexahedral_divisions_and_level(tiny_scene, tmp_path):
+    sc = tiny_scene("free_bending", "mesh.level=1")
+    _, summary = write_mesh(sc, tmp_path)
+    n = 4 * 2 * 1 * 2 * 1 * 2
+    assert summary["groups"]["active"]["cells"] == n and summary["groups"]["passive"]["cells"] == n
+
+
+def test_coin_volume_at_default_size(tmp_path):
+    _, summary = write_mesh(scenes.load("coin_pull"), tmp_path)
+    assert abs(summary["coin_volume_rel_error"]) < 5e-3
+
+
+def test_dolfinx_reads_dea_and_coin(tiny_scene, tmp_path):
+    from mpi4py import MPI
+    from deapull.fem_solver.compat import read_mesh, num_cells_global
+    path, summary = write_mesh(tiny_scene("coin_pull"), tmp_path)
+    mesh, ct, ft = read_mesh(path, MPI.COMM_WORLD)
+    assert num_cells_global(mesh) == summary["groups"]["active"]["cells"] + summary["groups"]["passive"]["cells"]
+    assert set(np.unique(ct.values)) == {groups.ACTIVE, groups.PASSIVE}
+    assert {groups.CLAMP, groups.DEA_CONTACT, groups.ELECTRODE_TOP} <= set(np.unique(ft.values))
+    coin, cct, cft = read_mesh(path, MPI.COMM_WORLD, volumes=("coin",))
+    assert set(np.unique(cct.values)) == {groups.COIN}
+    assert set(np.unique(cft.values)) == {groups.COIN_TOP, groups.COIN_BOTTOM}
+
+
+def test_missing_mesh_and_missing_group(tiny_scene, tmp_path):
+    from deapull.fem_solver.compat import MeshFileError, read_mesh
+    with pytest.raises(MeshFileError, match="not found"):
+        read_mesh(tmp_path / "nope.msh")
+    path, _ = write_mesh(tiny_scene("free_bending"), tmp_path)
+    with pytest.raises(MeshFileError, match="coin missing"):
+        read_mesh(path, volumes=("coin",))
+
+
+MPI_SCRIPT = """
+import sys
+import numpy as np
+from mpi4py import MPI
+from deapull.fem_solver.compat import read_mesh, num_cells_global
+mesh, ct, ft = read_mesh(sys.argv[1], MPI.COMM_WORLD)
+n_local = mesh.topology.index_map(3).size_local
+tags = MPI.COMM_WORLD.allreduce(set(np.unique(ft.values).tolist()), op=MPI.BOR)
+if MPI.COMM_WORLD.rank == 0:
+    print("CELLS", num_cells_global(mesh), "SIZE", MPI.COMM_WORLD.size, "TAGS", sorted(tags))
+"""
+
+
+@pytest.mark.mpi
+def test_dolfinx_reads_under_mpirun(tiny_scene, tmp_path):
+    path, summary = write_mesh(tiny_scene("coin_pull"), tmp_path)
+    script = tmp_path / "read.py"
+    script.write_text(MPI_SCRIPT)
+    proc = mpirun(2, str(script), str(path))
+    assert proc.returncode == 0, proc.stderr
+    n = summary["groups"]["active"]["cells"] + summary["groups"]["passive"]["cells"]
+    assert f"CELLS {n} SIZE 2 TAGS [11, 12, 13, 14]" in proc.stdout

@@ -1,0 +1,180 @@
+"""The fidelity ladder and the stability study on tiny meshes and short protocols: files
+written, failures as rows with PETSc's reason, resume, MPI, bad input."""
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+MPI = pytest.importorskip("mpi4py.MPI")
+
+from deapull.io import cell
+from deapull.workflows import fidelity, runner, stability
+from deapull.workflows.runner import Case, run_cases
+from tests.conftest import REPO, mpirun
+
+pytestmark = pytest.mark.fem
+
+# a tiny mesh and a short protocol: 0 -> 200 V in 0.1 s, base step 0.02 s ("full": the scene's
+# steps); both stages happen: the coin starts to slide at ~120 V and travels ~0.19 mm toward -x
+# (27 points, a few cut-backs at the onset)
+TINY = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004", "load.end_time_s=0.1",
+        "load.ramp_time_s=0.1", "time.dt_max_s=0.02", "time.dt_initial_s=0.02", "load.voltage_max_V=200")
+MOVES_MM = 0.1     # the coin travels more than this under TINY (measured 0.19 mm)
+
+
+def _cli(*args):
+    return [sys.executable, "-m", "deapull.workflows", *args]
+
+
+def _sets(overrides):
+    return [a for o in overrides for a in ("--set", o)]
+
+
+# --- pure functions ----------------------------------------------------------------------
+
+def test_trajectory_errors_interpolate_onto_reference_time():
+    t = np.linspace(0, 1, 11)
+    ref = {"t": t, "x": -1e-3 * t, "Fy": 0.01 * t}
+    run = {"t": np.linspace(0, 1, 3), "x": -1e-3 * np.linspace(0, 1, 3) - 1e-4, "Fy": 0.01 * np.linspace(0, 1, 3)}
+    e = fidelity.trajectory_errors(ref, run)
+    assert e["mae_x_mm"] == pytest.approx(0.1) and e["mae_Fy_mN"] == pytest.approx(0.0, abs=1e-12)
+    assert e["travel_err_mm"] == pytest.approx(0.1) and e["travel_err_pct"] == pytest.approx(10.0)
+    assert e["error_pct"] == pytest.approx(10.0)
+
+
+def test_pareto_front_keeps_only_undominated_rungs():
+    rows = [dict(case="a", status="ok", solve_s=1.0, error_pct=10.0), dict(case="b", status="ok", solve_s=2.0, error_pct=20.0),
+            dict(case="c", status="ok", solve_s=3.0, error_pct=1.0),
+            dict(case="ref", status="ok", solve_s=9.0, error_pct=0.0, is_reference=True),
+            dict(case="f", status="failed", solve_s=0.5, error_pct=math.nan)]
+    assert fidelity.pareto_front(rows) == {"a", "c"}
+
+
+def test_instability_indicator_is_two_for_quadratic_growth():
+    V = np.linspace(0, 400, 41)
+    cols = {"V": V, "tip_ux": 0 * V, "tip_uy": -1e-3 - 1e-8 * V ** 2, "tip_uz": 0 * V}
+    ind = runner.instability_indicators(cols)
+    assert ind["tip_log_slope_max"] == pytest.approx(2.0) and ind["dV_collapse"] == pytest.approx(1.0)
+
+
+# --- the harnesses on tiny cases -------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def stability_rows(tmp_path_factory):
+    out = tmp_path_factory.mktemp("stability")
+    rows = stability.run_stability(out, MPI.COMM_WORLD, protocol="full", overrides=TINY,
+                                   names=["baseline", "nu0.5-disp", "pullin-free-bending"])
+    return out, {r["case"]: r for r in rows}
+
+
+def test_stability_writes_csv_and_markdown(stability_rows):
+    out, rows = stability_rows
+    df = pd.read_csv(out / "stability.csv")
+    assert list(df.case) == ["baseline", "nu0.5-disp", "pullin-free-bending"]
+    md = (out / "stability.md").read_text()
+    assert "| baseline |" in md and "Pull-in" in md
+    base = rows["baseline"]
+    assert base["converged"] and base["as_expected"] and base["steps"] >= 6
+    assert base["travel_mm"] > MOVES_MM            # the kinetic stage is part of the study
+    for key in ("newton_iterations", "cutbacks", "min_dt_s", "max_penetration_mm", "max_force_residual_N", "wall_s"):
+        assert math.isfinite(base[key]), key
+    assert (out / "cases" / "baseline" / "C3.nc").exists()
+
+
+def test_rejected_scene_is_a_row(stability_rows):
+    row = stability_rows[1]["nu0.5-disp"]
+    assert row["status"] == "rejected" and row["as_expected"]
+    assert row["outcome"].startswith("rejected: ") and "poisson_ratio = 0.5" in row["outcome"]
+
+
+def test_pull_in_is_detected_with_its_voltage(stability_rows):
+    """Far beyond pull-in the step cannot be solved: the row says where, with PETSc's reason,
+    and the tip deflection grew faster than the small-strain V^2 law before it."""
+    out, rows = stability_rows
+    row = rows["pullin-free-bending"]
+    assert row["status"] == "failed" and row["as_expected"]
+    assert row["reason"].startswith(("DIVERGED", "COUPLING", "NON_FINITE"))
+    assert 0 < row["instability_V"] < 1500 and row["fail_V"] == row["instability_V"]
+    assert row["tip_log_slope_max"] > 2.0 and row["dV_collapse"] > 100
+    assert (out / "cases" / "pullin-free-bending" / "partial.nc").exists()
+
+
+def test_diverging_case_is_a_failed_row_with_petsc_reason(tmp_path):
+    case = Case("no-newton", "coin_pull", "C3", (*TINY, "solver.newton_max_it=1", "time.max_cutbacks=0"),
+                "one Newton iteration, no cut-back")
+    [row] = run_cases([case], tmp_path, MPI.COMM_WORLD)
+    assert row["status"] == "failed" and "DIVERGED_MAX_IT" in row["reason"]
+    assert math.isfinite(row["fail_t_s"]) and math.isfinite(row["fail_V"])
+    assert not list((tmp_path / "cases" / "no-newton").glob("*.nc.tmp"))
+
+
+def test_fidelity_ladder_writes_csv_markdown_and_pareto_plot(tmp_path):
+    rows = fidelity.run_ladder("coin_pull", "C3", tmp_path, MPI.COMM_WORLD, rungs="full", overrides=TINY,
+                               only=["hex-Q2-mixed-coarse", fidelity.DEFAULT])
+    df = pd.read_csv(tmp_path / "fidelity.csv")
+    assert list(df.case) == ["hex-Q2-mixed-coarse", fidelity.DEFAULT, fidelity.REFERENCE]
+    assert set(df.kind) == {"fem"} and set(df.status) == {"ok"}
+    ref = df[df.is_reference].iloc[0]
+    assert ref.mae_x_mm == 0 and ref.mae_Fy_mN == 0 and ref.dofs > df.dofs.max() / 2
+    assert ref.travel_mm > MOVES_MM                 # x(t) errors compare moving coins
+    default = df[df.is_default].iloc[0]
+    assert default.case == fidelity.DEFAULT and default.mae_Fy_mN > 0 and 0 < default.solve_s <= default.wall_s
+    assert 0 < default.mae_x_mm < default.travel_mm and default.travel_mm > MOVES_MM
+    assert (tmp_path / "fidelity_pareto.png").stat().st_size > 10_000
+    md = (tmp_path / "fidelity.md").read_text()
+    assert "Shipped default" in md and "| hex-Q2-mixed-coarse |" in md
+    assert rows[1]["newton_iterations"] > 0
+
+
+def test_resume_skips_completed_case(tmp_path):
+    """A case whose result exists is not solved again; a missing one (an interrupted run) is."""
+    cmd = _cli("stability", "--out", str(tmp_path), "--protocol", "full", "--cases", "baseline,mu_b-1", *_sets(TINY))
+    first = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    assert first.returncode == 0, first.stderr[-2000:]
+    done = tmp_path / "cases" / "baseline.json"
+    stamp = done.stat().st_mtime_ns, (tmp_path / "cases" / "baseline" / "C3.nc").stat().st_mtime_ns
+    (tmp_path / "cases" / "mu_b-1.json").unlink()          # as if interrupted during mu_b-1
+    second = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
+    assert second.returncode == 0, second.stderr[-2000:]
+    assert "1 already done, 1 to run" in second.stderr
+    assert (done.stat().st_mtime_ns, (tmp_path / "cases" / "baseline" / "C3.nc").stat().st_mtime_ns) == stamp
+    assert json.loads((tmp_path / "cases" / "mu_b-1.json").read_text())["status"] == "ok"
+    assert "mu_b-1" in second.stdout and "Traceback" not in second.stderr
+
+
+@pytest.mark.mpi
+def test_stability_under_mpi_spreads_cases(tmp_path):
+    proc = mpirun(2, "-m", "deapull.workflows", "stability", "--out", str(tmp_path), "--protocol", "full",
+                  "--cases", "baseline,mu_t-0", *_sets(TINY))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    df = pd.read_csv(tmp_path / "stability.csv")
+    assert list(df.case) == ["baseline", "mu_t-0"] and df.converged.all()
+    assert proc.stdout.count("wrote") == 1                   # rank 0 alone reports
+
+
+def test_bad_input_exits_2_before_any_solve(tmp_path):
+    for args in (("stability", "--cases", "nope"), ("fidelity", "--only", "nope"),
+                 ("stability", "--set", "dea.poisson_ratio=2")):
+        proc = subprocess.run(_cli(*args, "--out", str(tmp_path)), capture_output=True, text=True, cwd=REPO)
+        assert proc.returncode == 2 and "error" in proc.stderr and "Traceback" not in proc.stderr, args
+    assert not (tmp_path / "cases").exists()
+
+
+@pytest.mark.mpi
+def test_fewer_cases_than_rank_groups_do_not_hang(tmp_path):
+    """One case on two ranks: rank 1 has nothing to solve. PETSc's initialisation is
+    collective on COMM_WORLD, so it must happen on every rank before the groups split
+    (it used to happen lazily on the solving rank alone, which then waited forever)."""
+    proc = mpirun(2, "-m", "deapull.workflows", "stability", "--out", str(tmp_path), "--protocol", "full",
+                  "--cases", "baseline", *_sets(TINY), timeout=150)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert list(pd.read_csv(tmp_path / "stability.csv").case) == ["baseline"]
+
+
+def test_table_times_keep_two_digits_below_a_second():
+    assert cell(39.94, "s") == "39.9"
+    assert cell(0.002171, "s") == "0.0022"     # a surrogate's rollout, not "0.0"
+    assert cell(float("nan"), "s") == "–"

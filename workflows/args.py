@@ -1,0 +1,35 @@
+"""The one argument helper of every ``deapull`` sub-command that reads a scene.
+
+``--scene``, ``--setup`` and ``--set SECTION.KEY=VALUE`` (repeatable) mean the same in
+every command; :func:`load_scene` validates them like the file (bad input raises
+:class:`deapull.errors.InputError` before any work).
+"""
+from __future__ import annotations
+
+import argparse
+
+from deapull import scene as scenes
+
+
+def add_scene_args(p: argparse.ArgumentParser, scene: bool = True, setup: bool = True,
+                   scene_default: str | None = None, set_help: str | None = None) -> None:
+    """Add ``--scene`` (required unless ``scene_default``), ``--setup`` and ``--set``."""
+    if scene:
+        p.add_argument("--scene", required=scene_default is None, default=scene_default,
+                       help="shipped scene name or path to a TOML file"
+                            + (f" (default {scene_default})" if scene_default else ""))
+    if setup:
+        p.add_argument("--setup", default=None, help="setup of the scene (coin_pull: C1..C8; default: the scene's)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help=set_help or "override one scene key (validated like the file); repeatable")
+
+
+def load_scene(args) -> scenes.Scene:
+    """The scene that ``--scene/--setup/--set`` name, validated."""
+    return scenes.load(args.scene, setup=args.setup, overrides=args.overrides)
+
+
+def names(text: str) -> list[str] | None:
+    """``"a, b"`` → ``["a", "b"]``; an empty text → None (meaning: all)."""
+    out = [s.strip() for s in text.split(",") if s.strip()]
+    return out or None

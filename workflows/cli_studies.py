@@ -1,0 +1,81 @@
+"""Sub-commands of the FEM studies: ``fidelity`` and ``stability`` (dolfinx is imported lazily).
+
+Both run under ``mpirun -n N`` like the sweep (cases over rank groups, one rank per case by
+default), resume after an interruption, and print their table on rank 0.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from deapull.workflows.args import add_scene_args, names
+
+
+def cmd_fidelity(args) -> int:
+    from mpi4py import MPI
+
+    from deapull.workflows.fidelity import run_ladder, summary_table
+    extra = None
+    if args.surrogate:   # models and their dataset are checked before any FEM work
+        from deapull.workflows import ladder
+        from deapull.surrogate.data import load_setup
+        from deapull import scene as scenes
+        setup = scenes.load(args.scene, setup=args.setup, overrides=args.overrides).setup
+        models = ladder.load_models(args.surrogate)
+        load_setup(Path(args.surrogate_data) / f"{setup}.nc")
+
+        def extra(setup_name):
+            return ladder.ladder_rows(models, args.surrogate_data, setup_name, args.out)
+    rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, args.overrides,
+                      names(args.only), args.ranks_per_case, extra_rows=extra)
+    if MPI.COMM_WORLD.rank != 0:
+        return 0
+    print(summary_table(rows))
+    print(f"wrote {args.out}/fidelity.csv, fidelity.md, fidelity_pareto.png")
+    reference = next(r for r in rows if r.get("is_reference"))
+    return 0 if reference["status"] == "ok" else 1
+
+
+def cmd_stability(args) -> int:
+    from mpi4py import MPI
+
+    from deapull.workflows.stability import run_stability, summary_table
+    rows = run_stability(args.out, MPI.COMM_WORLD, args.protocol, names(args.cases), args.overrides,
+                         args.ranks_per_case)
+    if MPI.COMM_WORLD.rank != 0:
+        return 0
+    print(summary_table(rows))
+    print(f"wrote {args.out}/stability.csv, stability.md")
+    return 1 if any(r["status"] == "error" for r in rows) else 0
+
+
+def _common(p) -> None:
+    p.add_argument("--out", required=True, help="output folder (cases/, CSV, Markdown)")
+    p.add_argument("--ranks-per-case", type=int, default=1, help="ranks sharing one case's mesh (default 1)")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("fidelity", help="error against run time: ladder of meshes, elements and steps "
+                                        "(run under mpirun -n N; resumes)")
+    add_scene_args(p, scene_default="coin_pull",
+                   set_help="override one scene key in every rung (validated like the file); repeatable")
+    p.add_argument("--rungs", default="quick", choices=("quick", "full"),
+                   help="quick: base step end/100 plus the shipped step; full: the scene's steps (default quick)")
+    p.add_argument("--only", default="", help="comma-separated rung names (default: all; the reference is "
+                                              "always run)")
+    p.add_argument("--surrogate", action="append", default=[], metavar="MODEL_DIR",
+                   help="also place a trained surrogate (a folder from `deapull train`/`experiments`) on the "
+                        "ladder, rolled out over the sweep dataset of the setup; repeatable")
+    p.add_argument("--surrogate-data", default="data", help="sweep folder with <setup>.nc for --surrogate "
+                                                            "(default data)")
+    _common(p)
+    p.set_defaults(func=cmd_fidelity)
+
+    p = sub.add_parser("stability", help="stiff and extreme cases, each a row: converged or why not "
+                                         "(run under mpirun -n N; resumes)")
+    p.add_argument("--cases", default="", help="comma-separated case names (default: all)")
+    add_scene_args(p, scene=False, setup=False,
+                   set_help="override one scene key in every case (validated like the file); repeatable")
+    p.add_argument("--protocol", default="quick", choices=("quick", "full"),
+                   help="quick: 1 s ramp with base step 0.01 s; full: the scene's steps (default quick)")
+    _common(p)
+    p.set_defaults(func=cmd_stability)

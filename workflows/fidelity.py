@@ -1,0 +1,375 @@
+"""Error against run time of the FEM: the fidelity ladder (``deapull fidelity``).
+
+A *rung* is one FEM run of the same scene and setup with one discretisation: element
+(P1 / P2 tetrahedra, Q2 hexahedra), formulation (mixed u–p or pure displacement),
+resolution (coarse, the shipped mesh, finer in-plane, one or two uniform refinements)
+and largest time step. Every rung is compared with the *reference rung* (the finest
+affordable run: Q2–Q1 hexahedra refined once, half the time step): MAE of the coin
+position x(t) and of the pressing force Fy(t), both interpolated onto the reference's
+t, and the error in coin travel. Pure displacement needs ν < 0.5, so those rungs use
+ν = 0.49; their error includes that modelling change (rung ``hex-Q2-mixed-L0-nu049``
+measures it alone).
+
+Resolutions and steps are relative to the scene as loaded (with ``--set``), so a tiny
+base mesh gives a tiny ladder. ``rungs = "full"`` keeps the scene's protocol and steps
+(coin_pull: 1 s, dt_max 1/720 s, ≥ 720 points). ``"quick"`` keeps the 1 s protocol but
+makes the ladder's base step end/100 (0.01 s, ~100 points; the flow is quasi-static, so
+this moves the coin travel by ~0.2 %) and adds the shipped discretisation at the shipped
+step as its own rung, so the default is still placed on the ladder.
+
+The rungs run on the study runner (:mod:`deapull.workflows.runner`): over MPI rank groups,
+one atomic result JSON per rung, resumable.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from deapull import dataset, provenance, scene as scenes
+from deapull.errors import InputError
+from deapull.io import atomic_write, cell as fmt, markdown_table, write_csv, write_text
+from deapull.workflows.runner import Case, run_cases
+
+log = logging.getLogger(__name__)
+
+
+# --- the ladder ------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Rung:
+    """One discretisation, relative to the scene as loaded.
+
+    ``resolution``: ``coarse`` (half the divisions in plane), ``base`` (as loaded), ``fine``
+    (twice in plane), ``L1`` / ``L2`` (mesh.level + 1 / + 2: every direction × 2 / × 4).
+    ``dt_factor`` scales the ladder's base ``time.dt_max_s``; ``shipped_dt`` uses the scene's
+    own step instead (quick ladder only); ``poisson_ratio`` None keeps the scene's.
+    """
+    name: str
+    cell: str
+    order: int
+    formulation: str
+    resolution: str = "base"
+    dt_factor: float = 1.0
+    poisson_ratio: float | None = None
+    shipped_dt: bool = False
+
+    @property
+    def elements(self) -> str:
+        family = "Q" if self.cell == "hexahedron" else "P"
+        u = f"{family}{self.order}"
+        if self.formulation == "displacement":
+            return f"{u} {self.cell[:3]}"
+        return f"{u}–{family}{max(self.order - 1, 1)} {self.cell[:3]} mixed"
+
+
+NU_DISPLACEMENT = 0.49        # pure displacement needs ν < 0.5
+REFERENCE = "hex-Q2-mixed-L1-dthalf"
+DEFAULT = "hex-Q2-mixed-L0"            # the shipped discretisation (the shipped step in a full ladder)
+SHIPPED = "hex-Q2-mixed-L0-dtshipped"  # the same at the shipped step, in a quick ladder
+HEX_Q2 = dict(cell="hexahedron", order=2)
+TET_P2 = dict(cell="tetrahedron", order=2)
+TET_P1 = dict(cell="tetrahedron", order=1)
+
+LADDER = (
+    Rung("hex-Q2-mixed-coarse", **HEX_Q2, formulation="mixed", resolution="coarse"),
+    Rung(DEFAULT, **HEX_Q2, formulation="mixed"),
+    Rung(SHIPPED, **HEX_Q2, formulation="mixed", shipped_dt=True),
+    Rung("hex-Q2-mixed-L0-dt2x", **HEX_Q2, formulation="mixed", dt_factor=2.0),
+    Rung("hex-Q2-mixed-L0-dthalf", **HEX_Q2, formulation="mixed", dt_factor=0.5),
+    Rung("hex-Q2-mixed-fine", **HEX_Q2, formulation="mixed", resolution="fine"),
+    Rung("hex-Q2-mixed-L1", **HEX_Q2, formulation="mixed", resolution="L1"),
+    Rung(REFERENCE, **HEX_Q2, formulation="mixed", resolution="L1", dt_factor=0.5),
+    Rung("hex-Q2-mixed-L0-nu049", **HEX_Q2, formulation="mixed", poisson_ratio=NU_DISPLACEMENT),
+    Rung("hex-Q2-disp-L0-nu049", **HEX_Q2, formulation="displacement", poisson_ratio=NU_DISPLACEMENT),
+    Rung("tet-P2-mixed-L0", **TET_P2, formulation="mixed"),
+    Rung("tet-P2-disp-L0-nu049", **TET_P2, formulation="displacement", poisson_ratio=NU_DISPLACEMENT),
+    Rung("tet-P1-disp-L0-nu049", **TET_P1, formulation="displacement", poisson_ratio=NU_DISPLACEMENT),
+    Rung("tet-P1-disp-L1-nu049", **TET_P1, formulation="displacement", resolution="L1",
+         poisson_ratio=NU_DISPLACEMENT),
+    Rung("tet-P1-disp-L2-nu049", **TET_P1, formulation="displacement", resolution="L2",
+         poisson_ratio=NU_DISPLACEMENT),
+)
+RUNG_SETS = ("quick", "full")
+STUDY_STEPS = 100      # base steps of a quick study over the protocol
+
+
+def protocol_overrides(base, protocol: str) -> tuple[str, ...]:
+    """``quick``: the same protocol with a base step of end/100; ``full``: the scene's steps."""
+    if protocol == "full":
+        return ()
+    dt = base.load.end_time_s / STUDY_STEPS
+    return (f"time.dt_max_s={dt!r}", f"time.dt_initial_s={min(base.time.dt_initial_s, dt)!r}")
+
+
+def _dt_overrides(dt: float, base) -> list[str]:
+    return [f"time.dt_max_s={dt!r}", f"time.dt_initial_s={min(base.time.dt_initial_s, dt)!r}"]
+
+
+def rung_overrides(rung: Rung, base, shipped) -> tuple[str, ...]:
+    """The ``--set`` strings that turn the ladder's base scene into this rung (``shipped``: the
+    scene as loaded, before the quick protocol)."""
+    m = base.mesh
+    out = [f"mesh.cell='{rung.cell}'", f"mesh.order={rung.order}", f"solver.formulation='{rung.formulation}'"]
+    if rung.resolution == "coarse":
+        out += [f"mesh.n_length={max(m.n_length // 2, 1)}", f"mesh.n_width={max(m.n_width // 2, 1)}"]
+    elif rung.resolution == "fine":
+        out += [f"mesh.n_length={2 * m.n_length}", f"mesh.n_width={2 * m.n_width}"]
+    elif rung.resolution in ("L1", "L2"):
+        out.append(f"mesh.level={m.level + int(rung.resolution[1])}")
+    if rung.shipped_dt:
+        out += [f"time.dt_max_s={shipped.time.dt_max_s!r}", f"time.dt_initial_s={shipped.time.dt_initial_s!r}"]
+    elif rung.dt_factor != 1.0:
+        out += _dt_overrides(base.time.dt_max_s * rung.dt_factor, base)
+    if rung.poisson_ratio is not None:
+        out.append(f"dea.poisson_ratio={rung.poisson_ratio!r}")
+    return tuple(out)
+
+
+def ladder_cases(scene_name: str, setup, rungs: str = "quick", overrides=(), only=None) -> list[Case]:
+    """The ladder's cases; ``only`` picks rungs by name (the reference is always added)."""
+    if rungs not in RUNG_SETS:
+        raise InputError(f"--rungs {rungs!r}: expected one of {', '.join(RUNG_SETS)}")
+    available = [r.name for r in LADDER if not (r.shipped_dt and rungs == "full")]
+    chosen = list(only) if only else list(available)
+    unknown = [n for n in chosen if n not in available]
+    if unknown:
+        raise InputError(f"--only {unknown[0]!r}: unknown rung for --rungs {rungs}; allowed: {', '.join(available)}")
+    if REFERENCE not in chosen:
+        chosen.append(REFERENCE)
+    shipped = scenes.load(scene_name, setup=setup, overrides=overrides)
+    protocol = protocol_overrides(shipped, rungs)
+    base = scenes.load(scene_name, setup=setup, overrides=(*overrides, *protocol))
+    default = SHIPPED if rungs == "quick" else DEFAULT
+    cases = []
+    for rung in LADDER:
+        if rung.name not in chosen:
+            continue
+        sets = rung_overrides(rung, base, shipped)
+        sc = scenes.load(scene_name, setup=setup, overrides=(*overrides, *protocol, *sets))
+        meta = {"kind": "fem", "elements": rung.elements, "cell": rung.cell, "order": rung.order,
+                "formulation": rung.formulation, "resolution": rung.resolution,
+                "poisson_ratio": sc.dea.poisson_ratio, "dt_max_s": sc.time.dt_max_s, "protocol": rungs,
+                "is_reference": rung.name == REFERENCE, "is_default": rung.name == default}
+        cases.append(Case(rung.name, scene_name, base.setup or None, (*overrides, *protocol, *sets),
+                          f"{rung.elements}, {rung.resolution} mesh, dt_max {sc.time.dt_max_s:.3g} s", meta))
+    return cases
+
+
+# --- errors against the reference ------------------------------------------------------
+
+def _travel(x) -> float:
+    """The coin's largest |x| (it starts at x = 0; either direction)."""
+    return float(np.max(np.abs(np.asarray(x, dtype=float))))
+
+
+def trajectory_errors(ref: dict, run: dict) -> dict:
+    """MAE of x(t) and Fy(t) on the reference's t, and the coin-travel error.
+
+    ``ref``, ``run``: mappings with arrays ``t``, ``x``, ``Fy`` (an FEM dataset, or a
+    surrogate's rollout on the same protocol). ``error_pct`` is the larger of the two MAEs
+    as a percentage of the reference's travel and of its largest Fy.
+    """
+    t = np.asarray(ref["t"])
+    x = np.interp(t, run["t"], run["x"])
+    fy = np.interp(t, run["t"], run["Fy"])
+    mae_x = float(np.mean(np.abs(x - ref["x"])))
+    mae_fy = float(np.mean(np.abs(fy - ref["Fy"])))
+    travel, travel_ref = _travel(run["x"]), _travel(ref["x"])
+    fy_ref = float(np.max(np.abs(ref["Fy"])))
+    rel_x = mae_x / travel_ref if travel_ref > 0 else math.nan
+    rel_fy = mae_fy / fy_ref if fy_ref > 0 else math.nan
+    rels = [r for r in (rel_x, rel_fy) if math.isfinite(r)]
+    return {"mae_x_mm": mae_x * 1e3, "mae_Fy_mN": mae_fy * 1e3, "travel_err_mm": abs(travel - travel_ref) * 1e3,
+            "travel_err_pct": 100 * abs(travel - travel_ref) / travel_ref if travel_ref > 0 else math.nan,
+            "mae_x_pct": 100 * rel_x, "mae_Fy_pct": 100 * rel_fy,
+            "error_pct": 100 * max(rels) if rels else math.nan}
+
+
+def _columns(path: Path) -> dict:
+    """t, x and Fy of a rung's dataset, or of a surrogate's rollout file in the same contract
+    (a black box predicts no Fy: NaN then, and its error is the x part)."""
+    cols = dict(dataset.read(path, variables=("t", "x"), optional=("Fy",)).columns)
+    cols.setdefault("Fy", np.full_like(cols["x"], np.nan))
+    return cols
+
+
+TIME_KEY = "solve_s"   # time stepping incl. placement; meshing and the one-off form compilation excluded
+
+
+def pareto_front(rows, error_key: str = "error_pct") -> set[str]:
+    """Names of the FEM rows no faster FEM row (on :data:`TIME_KEY`) beats on ``error_key``
+    (reference, failures and surrogate rows excluded: the front is the FEM's own)."""
+    usable = [r for r in rows if r.get("status") == "ok" and not r.get("is_reference")
+              and r.get("kind", "fem") == "fem"
+              and math.isfinite(r.get(error_key, math.nan)) and r[error_key] > 0]
+    front, best = set(), math.inf
+    for r in sorted(usable, key=lambda r: (r[TIME_KEY], r[error_key])):
+        if r[error_key] < best:
+            front.add(r["case"])
+            best = r[error_key]
+    return front
+
+
+def add_errors(rows, out_dir: Path) -> list[dict]:
+    """Errors of every finished rung against the reference rung (NaN when it is missing)."""
+    ref_row = next((r for r in rows if r.get("is_reference")), None)
+    ref = _columns(Path(out_dir) / ref_row["dataset"]) if ref_row and ref_row["status"] == "ok" else None
+    out = []
+    for r in rows:
+        r = dict(r)
+        if ref is not None and r["status"] == "ok":
+            r.update(trajectory_errors(ref, _columns(Path(out_dir) / r["dataset"])))
+        out.append(r)
+    for key, column in (("error_pct", "on_pareto"), ("travel_err_pct", "on_pareto_travel")):
+        front = pareto_front(out, key)
+        for r in out:
+            r[column] = r["case"] in front
+    nu = ref_row.get("poisson_ratio") if ref_row else None
+    same = pareto_front([r for r in out if r.get("poisson_ratio") == nu])
+    for r in out:
+        r["on_pareto_same_nu"] = r["case"] in same
+    return out
+
+
+# --- outputs ---------------------------------------------------------------------------
+
+CSV_COLUMNS = ("case", "kind", "status", "elements", "cell", "order", "formulation", "poisson_ratio",
+               "resolution", "dt_max_s", "dofs", "steps", "newton_iterations", "cutbacks", "solve_s", "wall_s",
+               "mae_x_mm", "mae_Fy_mN", "mae_x_pct", "mae_Fy_pct", "error_pct", "travel_mm", "travel_err_mm",
+               "travel_err_pct", "is_reference", "is_default", "on_pareto", "on_pareto_travel", "on_pareto_same_nu", "reason",
+               "protocol", "overrides")
+MD_COLUMNS = (("rung", "case", ""), ("elements", "elements", ""), ("ν", "poisson_ratio", "g"),
+              ("dt_max s", "dt_max_s", ".3g"), ("dofs", "dofs", "d"), ("steps", "steps", "d"),
+              ("Newton its", "newton_iterations", "d"), ("solve s", "solve_s", "s"), ("wall s", "wall_s", "s"),
+              ("MAE x mm", "mae_x_mm", ".3g"), ("MAE Fy mN", "mae_Fy_mN", ".3g"), ("travel mm", "travel_mm", ".3f"),
+              ("travel err %", "travel_err_pct", ".2f"), ("error %", "error_pct", ".2f"),
+              ("Pareto", "on_pareto", ""), ("Pareto, same ν", "on_pareto_same_nu", ""), ("status", "status", ""))
+
+
+def plot_pareto(rows, path: Path) -> None:
+    """Log–log error against wall time, Pareto fronts joined, default and reference marked."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    panels = (("error_pct", "on_pareto", "error: max(MAE x / travel, MAE Fy / max Fy) [%]"),
+              ("travel_err_pct", "on_pareto_travel", "coin-travel error [% of reference]"))
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+    ref = next((r for r in rows if r.get("is_reference") and r["status"] == "ok"), None)
+    for ax, (key, front_key, label) in zip(axes, panels):
+        pts = [r for r in rows if r["status"] == "ok" and r.get(key, math.nan) > 0 and not r.get("is_reference")]
+        for kind, marker in (("fem", "o"), ("surrogate", "s")):
+            sel = [r for r in pts if r.get("kind", "fem") == kind]
+            if sel:
+                ax.scatter([r[TIME_KEY] for r in sel], [r[key] for r in sel], marker=marker,
+                           color="C0" if kind == "fem" else "C2", label=f"{kind} rows", zorder=2)
+        for r in pts:
+            ax.annotate(r["case"], (r[TIME_KEY], r[key]), fontsize=7, xytext=(4, 3), textcoords="offset points")
+        front = sorted((r for r in pts if r.get(front_key)), key=lambda r: r[TIME_KEY])
+        if front:
+            ax.step([r[TIME_KEY] for r in front], [r[key] for r in front], where="post", color="C1", lw=1.5,
+                    label="Pareto front", zorder=1)
+            ax.scatter([r[TIME_KEY] for r in front], [r[key] for r in front], s=90, facecolors="none",
+                       edgecolors="C1", zorder=3)
+        default = [r for r in pts if r.get("is_default")]
+        if default:
+            ax.scatter([default[0][TIME_KEY]], [default[0][key]], marker="*", s=300, color="C3", zorder=4,
+                       label="shipped default")
+        if ref is not None:
+            ax.axvline(ref[TIME_KEY], color="grey", ls="--", lw=1, label=f"reference ({ref['case']})")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("run time: time stepping incl. placement, one core [s]")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+    # one legend under both panels: inside an axes it hid the points in its corner
+    legend = {}
+    for ax in axes:
+        for handle, text in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(text, handle)
+    fig.legend(list(legend.values()), list(legend), loc="lower center", ncol=len(legend), fontsize=8,
+               frameon=False)
+    fig.suptitle("FEM fidelity ladder: error against run time (reference: finest affordable rung)")
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=130, format=path.suffix[1:]))
+    plt.close(fig)
+
+
+def default_verdict(rows) -> str:
+    """Where the shipped default sits: its error, time and whether it is on the Pareto front."""
+    d = next((r for r in rows if r.get("is_default")), None)
+    if d is None or d["status"] != "ok" or not math.isfinite(d.get("error_pct", math.nan)):
+        return "The shipped default rung did not run (or the reference is missing): no verdict."
+    beaten = [r["case"] for r in rows if r["status"] == "ok" and not r.get("is_reference") and r is not d
+              and r.get("kind", "fem") == "fem" and r[TIME_KEY] <= d[TIME_KEY]
+              and r.get("error_pct", math.inf) < d["error_pct"]]
+    where = "on the Pareto front" if d.get("on_pareto") else f"not on the Pareto front (beaten by {', '.join(beaten)})"
+    where += (f"; among the rungs with the reference's ν = {d['poisson_ratio']:g} it is "
+              f"{'on' if d.get('on_pareto_same_nu') else 'not on'} the front")
+    return (f"Shipped default ({d['case']}, {d['elements']}): error {d['error_pct']:.2f} %, coin-travel error "
+            f"{fmt(d.get('travel_err_pct'), '.2f')} %, solve {d[TIME_KEY]:.1f} s (wall {d['wall_s']:.1f} s), "
+            f"{d['dofs']} dofs — {where}.")
+
+
+def write_markdown(rows, path: Path, header: str) -> None:
+    ref = next((r for r in rows if r.get("is_reference")), {})
+    text = "\n".join([
+        "# FEM fidelity ladder", "", header, "", f"Reference rung: `{ref.get('case', REFERENCE)}` "
+        f"({fmt(ref.get('dofs'), 'd')} dofs, solve {fmt(ref.get(TIME_KEY), '.1f')} s, travel "
+        f"{fmt(ref.get('travel_mm'), '.3f')} mm, status {ref.get('status', 'missing')}).", "",
+        default_verdict(rows), "", markdown_table(rows, MD_COLUMNS), "",
+        "error % = max(MAE x / reference travel, MAE Fy / reference max Fy); Pareto = no rung with a shorter "
+        "solve time has a smaller error. solve s = time stepping incl. the initial placement; wall s adds "
+        "meshing and the one-off form compilation (cached across runs). ν = 0.49 rungs include the change of "
+        "material (rung hex-Q2-mixed-L0-nu049 isolates it). Surrogate rows (if any): a trained model rolled out "
+        "over the sweep dataset of the same setup, solve s = the rollout; their error includes that of the FEM "
+        "they learned from; the Pareto front is the FEM rungs'.", ""])
+    write_text(path, text)
+
+
+def report(rows, out_dir: Path, header: str = "") -> list[dict]:
+    """Errors, CSV, Markdown and the Pareto plot of a finished ladder (rank 0)."""
+    out_dir = Path(out_dir)
+    rows = add_errors(rows, out_dir)
+    write_csv(out_dir / "fidelity.csv", rows, CSV_COLUMNS)
+    write_markdown(rows, out_dir / "fidelity.md", header)
+    plot_pareto(rows, out_dir / "fidelity_pareto.png")
+    return rows
+
+
+def run_ladder(scene_name: str, setup, out_dir, comm, rungs: str = "quick", overrides=(), only=None,
+               ranks_per_case: int = 1, extra_rows=None) -> list[dict] | None:
+    """Run (or resume) the ladder and write its report; rank 0 returns the rows, others None.
+
+    ``extra_rows``: a callable run on rank 0 after the FEM rungs, returning more rows with
+    a ``dataset`` of (t, x, Fy) to compare with the reference (the surrogates' rows,
+    :func:`deapull.workflows.ladder.ladder_rows`)."""
+    out_dir = Path(out_dir)
+    cases = ladder_cases(scene_name, setup, rungs, overrides, only)
+    results = run_cases(cases, out_dir, comm, ranks_per_case, desc="fidelity")
+    if comm.rank != 0:
+        return None
+    if extra_rows is not None:
+        results = results + extra_rows(cases[0].setup)
+    setup_name = cases[0].setup or "-"
+    header = (f"Scene `{scene_name}`, setup `{setup_name}`, rungs `{rungs}`"
+              f"{f' (base step end/{STUDY_STEPS}; the shipped step in rung {SHIPPED})' if rungs == 'quick' else ''}, "
+              f"{comm.size} MPI rank(s), {ranks_per_case} per rung; extra --set: "
+              f"{' '.join(overrides) or 'none'}. {provenance.summary()}.")
+    return report(results, out_dir, header)
+
+
+def summary_table(rows) -> str:
+    """Plain-text summary for the terminal."""
+    lines = [f"{'rung':28s} {'dofs':>7s} {'solve s':>8s} {'error %':>8s} {'travel err %':>12s} pareto  status",
+             "-" * 86]
+    for r in rows:
+        lines.append(f"{r['case']:28s} {fmt(r.get('dofs'), 'd'):>7s} {fmt(r.get(TIME_KEY), 's'):>8s} "
+                     f"{fmt(r.get('error_pct'), '.2f'):>8s} {fmt(r.get('travel_err_pct'), '.2f'):>12s} "
+                     f"{'*' if r.get('on_pareto') else ' ':>6s}  {r['status']}{' (reference)' if r.get('is_reference') else ''}")
+    lines.append(default_verdict(rows))
+    return "\n".join(lines)
+

@@ -1,0 +1,266 @@
+"""The one resumable MPI case runner of the studies: sweep, fidelity ladder, stability suite.
+
+A study is a list of :class:`Case` s (a scene, a setup and the ``--set`` overrides that make
+the case). ``mpirun -n N deapull <study>`` splits the ranks into N / K groups of K ranks
+(``ranks_per_case``, default 1: at these mesh sizes one rank per case is fastest); group g
+solves cases g, g + N/K, … of those not yet done. Each finished case leaves one JSON result
+``<out>/cases/<name>.json``, written atomically, so an interrupted study resumes where it
+stopped and a file that exists is whole. A case whose scene fails validation becomes a
+``rejected`` row without solving; a solve that fails after its cut-backs becomes a
+``failed`` row with PETSc's reason (and its accepted steps as ``partial.nc``); a crash is
+an ``error`` row — never the end of the study.
+
+Two MPI details are handled here once: PETSc is initialised on every rank before the
+groups split (its initialisation is collective on COMM_WORLD, and a rank with no case
+left would otherwise leave the solving ranks waiting forever), and a rank whose share is
+done waits in a sleeping barrier (Open MPI's blocking one polls a core at full speed).
+Only rank 0 shows progress.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from deapull import dataset, scene as scenes
+from deapull.errors import InputError
+from deapull.io import write_json
+
+log = logging.getLogger(__name__)
+
+#: seconds between checks of a pending barrier
+POLL_S = 0.05
+
+
+# --- MPI -------------------------------------------------------------------------------
+
+def idle_barrier(comm, poll_s: float = POLL_S) -> None:
+    """A barrier that sleeps while it waits.
+
+    Open MPI's blocking ``Barrier`` polls at full speed: a rank whose share of the cases is
+    done would keep a core busy until the slowest group finishes, stealing it from the
+    solves still running when the ranks outnumber the free cores. This one posts a
+    non-blocking barrier and tests it every ``poll_s`` seconds.
+    """
+    request = comm.Ibarrier()
+    while not request.Test():
+        time.sleep(poll_s)
+
+
+def initialise_petsc(comm) -> None:
+    """Import dolfinx (and so initialise PETSc) on every rank before the groups split."""
+    import dolfinx.fem.petsc  # noqa: F401
+    comm.Barrier()
+
+
+# --- cases and their results -------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Case:
+    """One run of a study: a scene, a setup and the overrides that make it this case."""
+    name: str
+    scene: str
+    setup: str | None
+    overrides: tuple[str, ...]
+    description: str
+    meta: dict = field(default_factory=dict, compare=False)   # copied into the case's row
+
+
+def case_dir(out_dir: Path, name: str) -> Path:
+    return Path(out_dir) / "cases" / name
+
+
+def result_path(out_dir: Path, name: str) -> Path:
+    return Path(out_dir) / "cases" / f"{name}.json"
+
+
+def load_result(out_dir: Path, case: Case) -> dict | None:
+    """The stored result of ``case``, or None when absent, unreadable or made for other inputs."""
+    path = result_path(out_dir, case.name)
+    try:
+        result = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    same = (result.get("scene") == case.scene and result.get("setup") == (case.setup or "")
+            and result.get("overrides") == list(case.overrides))
+    return result if same else None
+
+
+def base_result(case: Case) -> dict:
+    return {"case": case.name, "description": case.description, "scene": case.scene, "setup": case.setup or "",
+            "overrides": list(case.overrides), **case.meta}
+
+
+# --- what a solved case reports ------------------------------------------------------------
+
+def run_stats(cols: dict) -> dict:
+    """Solver diagnostics of one run from its step columns (a dataset or partial records)."""
+    n = len(cols["t"])
+    if n == 0:
+        return {"steps": 0}
+    newton = np.asarray(cols["newton_iterations"])
+    dt = np.asarray(cols["dt"])[1:]
+    tip = np.asarray(cols["tip_uy"]) - cols["tip_uy"][0]
+    return {
+        "steps": n,
+        "newton_iterations": int(newton.sum()),
+        "max_newton_per_step": int(newton.max()),
+        "cutbacks": int(np.sum(cols["cutbacks"])),
+        "min_dt_s": float(dt.min()) if dt.size else math.nan,
+        "max_dt_s": float(dt.max()) if dt.size else math.nan,
+        "max_penetration_mm": float(np.max(cols["penetration_m"])) * 1e3,
+        "max_force_residual_N": float(np.max(cols["force_balance_residual_N"])),
+        "travel_mm": float(np.max(np.abs(cols["x"]))) * 1e3,
+        "solve_s": float(np.sum(cols["wall_time_s"])),
+        "max_Fy_mN": float(np.max(cols["Fy"])) * 1e3,
+        "max_tip_deflection_mm": float(np.max(np.abs(tip))) * 1e3,
+        "last_t_s": float(cols["t"][-1]),
+        "last_V": float(cols["V"][-1]),
+        **instability_indicators(cols),
+    }
+
+
+def instability_indicators(cols: dict, from_fraction: float = 0.1) -> dict:
+    """Signs of an approaching limit point (pull-in) in the accepted steps.
+
+    ``tip_log_slope_max``: the largest d ln|Δtip| / d ln V between consecutive accepted
+    steps with V ≥ ``from_fraction`` × the last voltage (Δtip: the free-end displacement
+    since t = 0, as a vector): 2 for the small-strain V² law, larger as the actuator
+    softens toward pull-in. ``dV_collapse``: the median accepted voltage increment over the
+    last one — of order 1 for a smooth ramp, ≫ 1 when the cut-backs can no longer advance
+    the voltage (the step size collapses at the limit point).
+    """
+    V = np.asarray(cols["V"], dtype=float)
+    tip = np.stack([np.asarray(cols[k], dtype=float) for k in ("tip_ux", "tip_uy", "tip_uz")])
+    d = np.linalg.norm(tip - tip[:, :1], axis=0)
+    use = np.flatnonzero((V >= from_fraction * V[-1]) & (V > 0) & (d > 0))
+    slope = math.nan
+    if use.size >= 2:
+        dv, dd = np.diff(np.log(V[use])), np.diff(np.log(d[use]))
+        ok = dv > 0
+        slope = float(np.max(dd[ok] / dv[ok])) if ok.any() else math.nan
+    dV = np.diff(V)
+    dV = dV[dV > 0]
+    collapse = float(np.median(dV) / dV[-1]) if dV.size else math.nan
+    return {"tip_log_slope_max": slope, "dV_collapse": collapse}
+
+
+def _write_partial(records, scene, path: Path) -> None:
+    """The accepted steps of a failed run, as a dataset marked incomplete (for diagnosis)."""
+    from deapull.fem_solver.stepping import as_arrays
+    ds = dataset.build(as_arrays(records), {"scene": scene.scene.name, "setup": scene.setup,
+                                            "scene_toml": scene.to_toml()})
+    ds.attrs["complete"] = 0
+    dataset.write(ds, path)
+
+
+def solve_case(case: Case, scene, out_dir: Path, comm, progress: bool, run_dir: Path | None = None) -> dict:
+    """Solve one case into ``run_dir`` (default ``<out>/cases/<name>/``); a failed or crashed
+    solve becomes a result that says so (its accepted steps in ``<out>/cases/<name>/partial.nc``)."""
+    from deapull.fem_solver.run import solve_scene
+    from deapull.fem_solver.stepping import SolveFailed, as_arrays
+    run_dir = case_dir(out_dir, case.name) if run_dir is None else Path(run_dir)
+    start = time.perf_counter()
+    try:
+        path = solve_scene(scene, run_dir, comm, progress=progress)
+    except SolveFailed as err:
+        wall = time.perf_counter() - start
+        log.info("%s: %s", case.name, err)
+        # the accepted steps, then the sub-steps of the failed step that were solved before
+        # it was given up (they show how the solve approached the failure)
+        steps = list(err.records) + list(getattr(err, "substeps", ()))
+        if steps and comm.rank == 0:
+            _write_partial(steps, scene, case_dir(out_dir, case.name) / "partial.nc")
+        stats = run_stats(as_arrays(steps)) if steps else {"steps": 0}
+        return {"status": "failed", "reason": err.reason, "fail_t_s": err.t, "fail_V": err.voltage,
+                "last_good_step": err.last_good_step, "wall_s": wall, **stats}
+    except Exception as err:   # a crash of one case is that case's row, not the study's end
+        log.exception("%s: crashed", case.name)
+        return {"status": "error", "reason": f"{type(err).__name__}: {err}", "steps": 0,
+                "wall_s": time.perf_counter() - start}
+    wall = time.perf_counter() - start
+    run = dataset.read(path, variables=tuple(dataset.VARIABLES))
+    return {"status": "ok", "reason": "", "wall_s": wall, "dofs": int(run.attrs["mesh_dofs"]),
+            "dataset": str(path.relative_to(out_dir)), **run_stats(run.columns)}
+
+
+def resolve_cases(cases) -> tuple[dict, dict]:
+    """Validate every case's scene before any work: ({name: Scene}, {name: rejection message})."""
+    resolved, rejected = {}, {}
+    for case in cases:
+        try:
+            resolved[case.name] = scenes.load(case.scene, setup=case.setup, overrides=case.overrides)
+        except scenes.SceneError as err:
+            rejected[case.name] = str(err)
+    return resolved, rejected
+
+
+# --- the runner ------------------------------------------------------------------------------
+
+Solver = Callable[[Case, object, Path, object, bool], dict]
+
+
+def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases",
+              solve: Solver = solve_case, is_done: Callable[[Case], bool] | None = None) -> list[dict]:
+    """Run a study's cases over rank groups; every rank returns the results in case order.
+
+    Parameters
+    ----------
+    cases : list of Case
+        Names must be unique.
+    out_dir : path-like
+    comm : mpi4py communicator (the study's ranks)
+    ranks_per_case : int
+        K: ranks that share one case's mesh; must divide ``comm.size``.
+    desc : str
+        Name of the progress bar and the log lines.
+    solve : callable
+        ``solve(case, scene, out_dir, group_comm, progress) -> dict`` (default
+        :func:`solve_case`: the dataset under ``<out>/cases/<name>/``).
+    is_done : callable, optional
+        ``is_done(case) -> bool``: a case to skip although it has no stored result (the
+        sweep: a complete dataset). The stored result of such a case, if any, is returned.
+    """
+    out_dir = Path(out_dir)
+    names = [c.name for c in cases]
+    if len(set(names)) != len(names):
+        raise InputError(f"case names must be unique: {names}")
+    if ranks_per_case < 1 or comm.size % ranks_per_case:
+        raise InputError(f"--ranks-per-case {ranks_per_case}: must divide the number of ranks ({comm.size})")
+    resolved, rejected = resolve_cases(cases)
+
+    def done(case):
+        return load_result(out_dir, case) is not None or (is_done is not None and is_done(case))
+
+    if comm.rank == 0:
+        for case in cases:
+            if case.name in rejected and load_result(out_dir, case) is None:
+                write_json(result_path(out_dir, case.name), {**base_result(case), "status": "rejected",
+                                                             "reason": rejected[case.name], "steps": 0})
+    todo = comm.bcast([c for c in cases if c.name in resolved and not done(c)] if comm.rank == 0 else None, root=0)
+    n_groups, color = comm.size // ranks_per_case, comm.rank // ranks_per_case
+    initialise_petsc(comm)
+    group = comm.Split(color, comm.rank)
+    if comm.rank == 0:
+        log.info("%s: %d cases, %d already done, %d to run on %d group(s) of %d rank(s) -> %s", desc, len(cases),
+                 len(cases) - len(todo), len(todo), n_groups, ranks_per_case, out_dir)
+    bar = tqdm(total=len(cases), initial=len(cases) - len(todo), desc=desc, unit="case", disable=comm.rank != 0)
+    for case in todo[color::n_groups]:
+        result = solve(case, resolved[case.name], out_dir, group, comm.rank == 0)
+        if group.rank == 0:
+            write_json(result_path(out_dir, case.name), {**base_result(case), **result})
+        if comm.rank == 0:
+            bar.n = sum(done(c) for c in cases)
+            bar.refresh()
+    idle_barrier(comm)
+    bar.n = len(cases)
+    bar.close()
+    group.Free()
+    return [load_result(out_dir, c) for c in cases]

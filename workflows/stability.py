@@ -1,0 +1,188 @@
+"""Numerical stability of the FEM: stiff and extreme cases (``deapull stability``).
+
+Each case is the coin_pull scene (setup C3) — or free_bending for the free pull-in —
+with one thing pushed to an extreme: near- and fully-incompressible material in both
+formulations, contact penalty from 1e-2 to 1e4 × the scene's, voltage far beyond
+pull-in, friction coefficients at 0 and 1, coin mass × 0.1 and × 10, a Gent material
+near locking, tiny and huge time steps and a first step forced too large. Every case is
+a row: converged or not, Newton iterations, cut-backs, the smallest step, the largest
+penetration, the largest coin force-balance residual, wall time, and for a failure
+PETSc's reason with the time and voltage where it happened. A scene that validation
+rejects (pure displacement at ν = 0.5) is a row ``rejected: <message>``.
+
+Protocol: ``quick`` (default) keeps the 1 s, 0 → V_max ramp on the shipped mesh with a
+base step of 0.01 s (~100 points, :data:`deapull.workflows.fidelity.STUDY_STEPS`); ``full`` keeps
+the scene's steps. The small-step case compresses the ramp into a tenth of the time so that its
+1e-4 s steps (for 1 s) cover the whole ramp in 1000 steps.
+
+Pull-in is *detected*, not crashed into: the step that cannot be solved after the
+cut-backs ends the run with :class:`fem_solver.stepping.SolveFailed`, and the row records
+its voltage as ``instability_V``, beside the growth of the tip deflection before it
+(``tip_log_slope_max``: 2 for the small-strain V² law, larger as the actuator softens) and
+the collapse of the accepted voltage increments (``dV_collapse``) as the cut-backs pile up.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from deapull import provenance, scene as scenes
+from deapull.errors import InputError
+from deapull.io import cell as fmt, markdown_table, write_csv, write_text
+from deapull.workflows.fidelity import protocol_overrides
+from deapull.workflows.runner import Case, run_cases
+
+BASE_SCENE, BASE_SETUP = "coin_pull", "C3"
+CONVERGED, INSTABILITY, REJECTED = "converged", "instability", "rejected"
+POISSON_RATIOS = (0.45, 0.49, 0.499, 0.4999, 0.5)
+PENALTY_FACTORS = (1e-2, 1e2, 1e4)
+PULL_IN_V = 1500.0
+GENT_LOCKING_I1 = 0.1          # estimated I1 - 3 at 400 V: a few 1e-2 (~6 % free actuation strain)
+TINY_COMPRESSION, TINY_STEPS = 10.0, 1000   # dt-tiny: ramp over end/10 in 1000 steps (1 s: 1e-4 s steps)
+HUGE_DT_FRACTION, FORCED_DT_FRACTION = 0.5, 0.2
+
+
+@dataclass(frozen=True)
+class Spec:
+    name: str
+    overrides: tuple[str, ...]
+    description: str
+    expected: str = CONVERGED
+    scene: str = BASE_SCENE
+
+
+def _specs(base) -> list[Spec]:
+    """Every case, built from the loaded base scene (relative factors become absolute values)."""
+    end = base.load.end_time_s
+    specs = [Spec("baseline", (), "shipped physics (nu 0.5, mixed, penalty x1) on the study protocol")]
+    for nu in POISSON_RATIOS:
+        specs.append(Spec(f"nu{nu:g}-disp", ("solver.formulation='displacement'", f"dea.poisson_ratio={nu!r}"),
+                          f"pure displacement, nu = {nu:g}", REJECTED if nu == 0.5 else CONVERGED))
+    for nu in POISSON_RATIOS[:-1]:
+        specs.append(Spec(f"nu{nu:g}-mixed", (f"dea.poisson_ratio={nu!r}",), f"mixed u-p, nu = {nu:g}"))
+    for f in PENALTY_FACTORS:
+        specs.append(Spec(f"penalty-x{f:g}", (f"contact.penalty_scale={base.contact.penalty_scale * f!r}",),
+                          f"contact penalty x{f:g} the scene's ({base.contact.penalty_scale * f:g} E/h)"))
+    for scene in ("free_bending", "coin_pull"):
+        specs.append(Spec(f"pullin-{scene.replace('_', '-')}", (f"load.voltage_max_V={PULL_IN_V!r}",),
+                          f"{scene}: 0 -> {PULL_IN_V:g} V, far beyond pull-in", INSTABILITY, scene))
+    for key in ("mu_t", "mu_b"):
+        for mu in (0.0, 1.0):
+            specs.append(Spec(f"{key}-{mu:g}", (f"coin.{key}={mu!r}",), f"coin.{key} = {mu:g}"))
+    for f in (0.1, 10.0):
+        rho = base.coin.density_kg_m3 * f
+        specs.append(Spec(f"mass-x{f:g}", (f"coin.density_kg_m3={rho!r}",), f"coin mass x{f:g} (density {rho:g})"))
+    specs.append(Spec("gent-locking", ("dea.material='gent'", f"dea.gent_locking_I1={GENT_LOCKING_I1!r}"),
+                      f"Gent material near locking (J_m = I1 - 3 at locking = {GENT_LOCKING_I1:g})"))
+    ramp = end / TINY_COMPRESSION
+    tiny = ramp / TINY_STEPS
+    specs.append(Spec("dt-tiny", (f"load.end_time_s={ramp!r}", f"load.ramp_time_s={ramp!r}",
+                                  f"time.dt_max_s={tiny!r}", f"time.dt_initial_s={tiny!r}", f"time.dt_min_s={tiny / 1e3!r}"),
+                      f"tiny steps: dt_max {tiny:g} s, the ramp compressed into {ramp:g} s"))
+    huge = end * HUGE_DT_FRACTION
+    specs.append(Spec("dt-huge", (f"time.dt_max_s={huge!r}",), f"huge steps allowed: dt_max {huge:g} s "
+                      "(grows x1.5 from the first step)"))
+    forced = end * FORCED_DT_FRACTION
+    specs.append(Spec("dt-forced", (f"time.dt_max_s={forced!r}", f"time.dt_initial_s={forced!r}"),
+                      f"first step forced too large: dt_initial = dt_max = {forced:g} s (cut-back must recover)"))
+    return specs
+
+
+def stability_cases(protocol: str = "quick", overrides=(), names=None) -> list[Case]:
+    """The study's cases; ``names`` picks cases (default: all). Bad names or --set raise InputError."""
+    if protocol not in ("quick", "full"):
+        raise InputError(f"--protocol {protocol!r}: expected one of quick, full")
+    shipped = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=overrides)
+    study = protocol_overrides(shipped, protocol)
+    base = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=(*overrides, *study))
+    specs = _specs(base)
+    known = [s.name for s in specs]
+    unknown = [n for n in names or () if n not in known]
+    if unknown:
+        raise InputError(f"--cases {unknown[0]!r}: unknown case; allowed: {', '.join(known)}")
+    chosen = [s for s in specs if not names or s.name in names]
+    return [Case(s.name, s.scene, BASE_SETUP if s.scene == BASE_SCENE else None, (*overrides, *study, *s.overrides),
+                 s.description, {"expected": s.expected, "protocol": protocol,
+                                 "voltage_max_V": PULL_IN_V if s.expected == INSTABILITY else base.load.voltage_max_V})
+            for s in chosen]
+
+
+# --- the table -------------------------------------------------------------------------
+
+def outcome(row: dict) -> str:
+    """One phrase: converged, or why not and where."""
+    status = row["status"]
+    if status == "ok":
+        return CONVERGED
+    if status == "failed":
+        return (f"failed: {row['reason']} at t = {row['fail_t_s']:.4g} s, V = {row['fail_V']:.4g} V "
+                f"(last good step {row['last_good_step']})")
+    return f"{status}: {row['reason']}"
+
+
+def finish_row(row: dict) -> dict:
+    """Add the derived columns: converged, outcome, instability voltage, as expected."""
+    row = dict(row)
+    row["converged"] = row["status"] == "ok"
+    row["outcome"] = outcome(row)
+    detected = row["status"] == "failed" and row.get("fail_V", math.inf) < row["voltage_max_V"]
+    row["instability_V"] = row["fail_V"] if row["expected"] == INSTABILITY and detected else math.nan
+    row["as_expected"] = {CONVERGED: row["converged"], INSTABILITY: detected,
+                          REJECTED: row["status"] == "rejected"}[row["expected"]]
+    return row
+
+
+CSV_COLUMNS = ("case", "description", "scene", "expected", "status", "converged", "as_expected", "steps",
+               "newton_iterations", "max_newton_per_step", "cutbacks", "min_dt_s", "max_dt_s", "max_penetration_mm",
+               "max_force_residual_N", "travel_mm", "max_Fy_mN", "max_tip_deflection_mm", "last_V", "solve_s", "wall_s",
+               "reason", "fail_t_s", "fail_V", "instability_V", "tip_log_slope_max", "dV_collapse", "dofs",
+               "outcome", "protocol", "overrides")
+MD_COLUMNS = (("case", "case", ""), ("converged", "converged", ""), ("as expected", "as_expected", ""),
+              ("steps", "steps", "d"), ("Newton its", "newton_iterations", "d"),
+              ("max its/step", "max_newton_per_step", "d"), ("cut-backs", "cutbacks", "d"),
+              ("min dt s", "min_dt_s", ".2g"), ("max pen. mm", "max_penetration_mm", ".3g"),
+              ("max coin residual N", "max_force_residual_N", ".2g"), ("travel mm", "travel_mm", ".3f"),
+              ("wall s", "wall_s", ".1f"), ("outcome", "outcome", ""))
+
+
+def write_markdown(rows, path: Path, header: str) -> None:
+    pullin = [r for r in rows if r["expected"] == INSTABILITY]
+    lines = ["# FEM stability: stiff and extreme cases", "", header, "", markdown_table(rows, MD_COLUMNS), ""]
+    if pullin:
+        lines += ["Pull-in (electromechanical instability) detection:", ""]
+        for r in pullin:
+            lines.append(f"* `{r['case']}`: {'detected at V = ' + format(r['instability_V'], '.4g') + ' V' if math.isfinite(r['instability_V']) else 'not detected'}; "
+                         f"largest tip log-slope d ln|tip| / d ln V {fmt(r.get('tip_log_slope_max'), '.3g')} "
+                         f"(2 = small-strain V^2 law), voltage-increment collapse {fmt(r.get('dV_collapse'), '.3g')}x, "
+                         f"max tip deflection {fmt(r.get('max_tip_deflection_mm'), '.3g')} mm.")
+        lines.append("")
+    unexpected = [r["case"] for r in rows if not r["as_expected"]]
+    lines.append(f"Cases not as expected: {', '.join(unexpected) if unexpected else 'none'}.")
+    write_text(path, "\n".join(lines) + "\n")
+
+
+def run_stability(out_dir, comm, protocol: str = "quick", names=None, overrides=(),
+                  ranks_per_case: int = 1) -> list[dict] | None:
+    """Run (or resume) the stability cases; rank 0 writes stability.csv/.md and returns the rows."""
+    out_dir = Path(out_dir)
+    cases = stability_cases(protocol, overrides, names)
+    results = run_cases(cases, out_dir, comm, ranks_per_case, desc="stability")
+    if comm.rank != 0:
+        return None
+    rows = [finish_row(r) for r in results]
+    header = (f"Base: `{BASE_SCENE}` setup `{BASE_SETUP}`, protocol `{protocol}`"
+              f"{' (1 s ramp, base step 0.01 s)' if protocol == 'quick' else ''}, {comm.size} MPI rank(s), "
+              f"{ranks_per_case} per case; extra --set: {' '.join(overrides) or 'none'}. {provenance.summary()}.")
+    write_csv(out_dir / "stability.csv", rows, CSV_COLUMNS)
+    write_markdown(rows, out_dir / "stability.md", header)
+    return rows
+
+
+def summary_table(rows) -> str:
+    lines = [f"{'case':24s} {'steps':>6s} {'newton':>7s} {'cuts':>5s} {'wall s':>7s}  outcome", "-" * 90]
+    for r in rows:
+        lines.append(f"{r['case']:24s} {fmt(r.get('steps'), 'd'):>6s} {fmt(r.get('newton_iterations'), 'd'):>7s} "
+                     f"{fmt(r.get('cutbacks'), 'd'):>5s} {fmt(r.get('wall_s'), '.1f'):>7s}  "
+                     f"{'' if r['as_expected'] else '[unexpected] '}{r['outcome']}")
+    return "\n".join(lines)
