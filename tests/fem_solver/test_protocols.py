@@ -14,12 +14,12 @@ def test_release_pulls_the_coin_toward_the_clamp(tmp_path):
     coin holds while the tip's friction is inside the ground's cone), then the retracting tip
     drags the coin toward +x (measured on this mesh over 1 s: 0.72 mm, sliding from 348 V)."""
     sc = scenes.load("coin_release", setup="C3", overrides=(*TEST_MESH, "load.ramp_time_s=0.4",
-                                                              "load.end_time_s=0.4", "time.dt_max_s=0.004"))
+                                                              "load.end_time_s=0.4", "time.dt_max_s=0.01"))
     with xr.open_dataset(solve_scene(sc, tmp_path, progress=False)) as ds:
         x, V, stick = ds.x.values, ds.V.values, ds.stick.values
         assert V[0] == 400 and V[-1] == 0 and ds.attrs["load_protocol"] == "release"
         assert x.min() >= 0 and x.max() > 0.3e-3, x.max()          # toward the clamp, a real distance
-        assert stick[:5].all() and np.all(x[:5] == 0)                 # the static stage comes first
+        assert stick[:3].all() and np.all(x[:3] == 0)                 # the static stage comes first
         assert ds.attrs["coin_motion"] == "toward +x (toward the clamp)"
         assert ds.attrs["coin_travel_m"] == x.max()
 
