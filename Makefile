@@ -10,7 +10,7 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
 
-.PHONY: help setup demo test mesh solve sweep bench-fem bench-surrogate fidelity stability experiments clean
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-surrogate fidelity stability experiments clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -36,6 +36,9 @@ solve: setup ## FEM solve of one setup: make solve SETUP=C5
 
 sweep: setup ## the 8 setups under mpirun -n $(NP) into $(DATA)/ (resumes if interrupted)
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull --out $(DATA)
+
+excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C3,C5,C7 into $(DATA)/excitation (resumes)
+	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull --setups C1,C3,C5,C7 --protocols excitation --out $(DATA)/excitation
 
 bench-fem: setup ## FEM wall time, travel error vs a finer mesh, 8-setup sweep; beside ABAQUS 130 s
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)

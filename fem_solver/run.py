@@ -52,7 +52,8 @@ class FieldWriter:
         self.file.close()
 
 
-def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, progress: bool = True) -> Path:
+def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, progress: bool = True,
+                name: str | None = None) -> Path:
     """Solve one scene (one setup) and write ``out_dir/<setup or scene>.nc``.
 
     Raises
@@ -61,7 +62,7 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         when a step cannot be solved after the cut-backs; no dataset is written then.
     """
     out_dir = Path(out_dir)
-    name = run_name(scene)
+    name = name or run_name(scene)
     start = time.perf_counter()
     mesh_path, summary = mesh_scene(scene, out_dir / "meshes" / name, comm)
     mesh, cell_tags, facet_tags = compat.read_mesh(mesh_path, comm)

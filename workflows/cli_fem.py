@@ -28,7 +28,7 @@ def cmd_sweep(args) -> int:
 
     from deapull.workflows.sweep import format_table, sweep
     setups = names(args.setups)
-    rows = sweep(args.scene, setups, args.out, MPI.COMM_WORLD, args.ranks_per_setup, args.overrides)
+    rows = sweep(args.scene, setups, args.out, MPI.COMM_WORLD, args.ranks_per_setup, args.overrides, args.protocols)
     if MPI.COMM_WORLD.rank == 0:
         print(format_table(rows))
     return 0 if all(r["status"] == "ok" for r in rows) else 1
@@ -45,6 +45,9 @@ def register(sub) -> None:
     p = sub.add_parser("sweep", help="solve every setup of a scene (run under mpirun -n N)")
     add_scene_args(p, setup=False, scene_default="coin_pull")
     p.add_argument("--setups", default="", help="comma-separated setups (default: all)")
+    p.add_argument("--protocols", default="scene", choices=("scene", "excitation"),
+                   help="scene: the scene's own protocol -> <setup>.nc (default); excitation: ramp-hold-ramp, "
+                        "triangle, release and 3 seeded random inputs -> <setup>_<protocol>.nc")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--ranks-per-setup", type=int, default=1, help="ranks sharing one setup's mesh")
     p.set_defaults(func=cmd_sweep)

@@ -161,15 +161,17 @@ def _write_partial(records, scene, path: Path) -> None:
     dataset.write(ds, path)
 
 
-def solve_case(case: Case, scene, out_dir: Path, comm, progress: bool, run_dir: Path | None = None) -> dict:
-    """Solve one case into ``run_dir`` (default ``<out>/cases/<name>/``); a failed or crashed
-    solve becomes a result that says so (its accepted steps in ``<out>/cases/<name>/partial.nc``)."""
+def solve_case(case: Case, scene, out_dir: Path, comm, progress: bool, run_dir: Path | None = None,
+               name: str | None = None) -> dict:
+    """Solve one case into ``run_dir`` (default ``<out>/cases/<name>/``) as ``<name>.nc`` (default
+    the setup's or scene's name); a failed or crashed solve becomes a result that says so (its
+    accepted steps in ``<out>/cases/<name>/partial.nc``)."""
     from deapull.fem_solver.run import solve_scene
     from deapull.fem_solver.stepping import SolveFailed, as_arrays
     run_dir = case_dir(out_dir, case.name) if run_dir is None else Path(run_dir)
     start = time.perf_counter()
     try:
-        path = solve_scene(scene, run_dir, comm, progress=progress)
+        path = solve_scene(scene, run_dir, comm, progress=progress, name=name)
     except SolveFailed as err:
         wall = time.perf_counter() - start
         log.info("%s: %s", case.name, err)

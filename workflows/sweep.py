@@ -1,9 +1,14 @@
 """The setup sweep (``mpirun -n N deapull sweep``): every setup of a scene, one dataset each.
 
-A case per setup on the study runner (:mod:`deapull.workflows.runner`): setups spread over
-rank groups, each dataset ``<out>/<setup>.nc`` written atomically, a setup whose dataset is
-complete skipped, so an interrupted sweep resumes and loses nothing. Rank 0 shows the
-progress and the closing table.
+A case per setup (and protocol) on the study runner (:mod:`deapull.workflows.runner`): cases
+spread over rank groups, each dataset written atomically, a case whose dataset is complete
+skipped, so an interrupted sweep resumes and loses nothing. Rank 0 shows the progress and
+the closing table.
+
+``--protocols`` picks the voltage protocols (:data:`PROTOCOL_SETS`): ``scene`` (default) plays
+the scene's own protocol into ``<out>/<setup>.nc``; ``excitation`` plays the inputs a
+controller applies — ramp–hold–ramp, triangle, release and three seeded random piecewise-linear
+inputs — into ``<out>/<setup>_<protocol>.nc`` (file names say the setup and the protocol).
 """
 from __future__ import annotations
 
@@ -17,31 +22,52 @@ from deapull.errors import InputError
 from deapull.workflows.runner import Case, run_cases, solve_case
 
 log = logging.getLogger(__name__)
-COLUMNS = (("setup", "case", "6s"), ("points", "steps", "6d"), ("travel mm", "travel_mm", "10.3f"),
+#: named sets of protocols: {set: {protocol name: --set overrides of [load]}} ("" = the scene's own)
+PROTOCOL_SETS = {
+    "scene": {"": ()},
+    "excitation": {
+        "rhr": ("load.protocol='ramp_hold_ramp'", "load.ramp_time_s=0.5", "load.hold_time_s=0.2",
+                "load.voltage_end_V=150.0", "load.ramp_down_time_s=0.3", "load.end_time_s=1.0"),
+        "triangle": ("load.protocol='triangle'", "load.ramp_time_s=0.5", "load.end_time_s=1.0"),
+        "release": ("load.protocol='release'", "load.ramp_time_s=1.0", "load.end_time_s=1.0"),
+        **{f"random{k}": ("load.protocol='random'", f"load.seed={k}", "load.rate_max_V_s=2000.0",
+                          "load.segment_min_s=0.05", "load.segment_max_s=0.2", "load.end_time_s=1.0")
+           for k in (1, 2, 3)},
+    },
+}
+COLUMNS = (("setup", "case", "12s"), ("points", "steps", "6d"), ("travel mm", "travel_mm", "10.3f"),
            ("max Fy mN", "max_Fy_mN", "10.3f"), ("wall s", "wall_s", "8.1f"))
 
 
-def sweep_cases(scene_name, setups, overrides) -> list[Case]:
-    """Validate every setup's scene before any work; one case per setup."""
+def sweep_cases(scene_name, setups, overrides, protocols: str = "scene") -> list[Case]:
+    """Validate every case's scene before any work; one case per setup and protocol."""
     available = scenes.setups_of(scene_name)
     if not available:
         raise InputError(f"scene {scene_name!r} has no setups to sweep")
+    if protocols not in PROTOCOL_SETS:
+        raise InputError(f"--protocols {protocols!r}: expected one of {', '.join(PROTOCOL_SETS)}")
     chosen = setups or available
     unknown = [s for s in chosen if s not in available]
     if unknown:
         raise InputError(f"--setups {unknown[0]!r}: unknown setup; allowed: {', '.join(available)}")
+    cases = []
     for s in chosen:
-        scenes.load(scene_name, setup=s, overrides=overrides)
-    return [Case(s, scene_name, s, tuple(overrides), f"{scene_name} setup {s}") for s in chosen]
+        for pname, sets in PROTOCOL_SETS[protocols].items():
+            every = (*sets, *overrides)          # the user's --set last: it wins
+            scenes.load(scene_name, setup=s, overrides=every)
+            name = f"{s}_{pname}" if pname else s
+            cases.append(Case(name, scene_name, s, every, f"{scene_name} setup {s}" + (f", {pname}" if pname else "")))
+    return cases
 
 
-def sweep(scene_name, setups, out_dir, comm, ranks_per_setup: int = 1, overrides=()) -> list[dict]:
-    """Run (or resume) the sweep; every rank returns the closing rows, in setup order."""
+def sweep(scene_name, setups, out_dir, comm, ranks_per_setup: int = 1, overrides=(),
+          protocols: str = "scene") -> list[dict]:
+    """Run (or resume) the sweep; every rank returns the closing rows, in case order."""
     out_dir = Path(out_dir)
-    cases = sweep_cases(scene_name, setups, overrides)
+    cases = sweep_cases(scene_name, setups, overrides, protocols)
 
     def solve(case, scene, out, group, progress):
-        return solve_case(case, scene, out, group, progress, run_dir=out)
+        return solve_case(case, scene, out, group, progress, run_dir=out, name=case.name)
 
     def complete(case):
         return dataset.is_complete(out_dir / f"{case.name}.nc")
@@ -67,14 +93,12 @@ def _row(out_dir: Path, case: Case, result: dict | None) -> dict:
 
 def format_table(rows) -> str:
     """The closing table, with the mean wall time beside the paper's (ABAQUS 130 s)."""
-    head = " ".join(f"{h:>{spec[:-1].split('.')[0]}s}" if i else f"{h:6s}" for i, (h, _, spec) in enumerate(COLUMNS))
-    lines = [head + "  status", "-" * 56]
+    widths = [int(spec[:-1].split(".")[0]) for _, _, spec in COLUMNS]
+    head = " ".join(f"{h:<{w}s}" if i == 0 else f"{h:>{w}s}" for i, ((h, _, _), w) in enumerate(zip(COLUMNS, widths)))
+    lines = [head + "  status", "-" * (len(head) + 8)]
     for r in rows:
-        cells = []
-        for i, (_, key, spec) in enumerate(COLUMNS):
-            v = r.get(key)
-            width = int(spec[:-1].split(".")[0])
-            cells.append(format(v, spec) if v is not None else f"{'–':>{width}s}")
+        cells = [format(r[key], spec) if r.get(key) is not None else f"{'–':>{w}s}"
+                 for (_, key, spec), w in zip(COLUMNS, widths)]
         lines.append(" ".join(cells) + f"  {r['status']}")
     walls = [r["wall_s"] for r in rows if r.get("wall_s") is not None and np.isfinite(r["wall_s"])]
     if walls:
