@@ -10,7 +10,7 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-surrogate fidelity stability experiments clean
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-surrogate fidelity stability control experiments clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -51,6 +51,23 @@ stability: setup ## stiff and extreme cases (issue 4)
 
 bench-surrogate: setup ## 1 s rollout time of each surrogate model (needs $(DATA) from make sweep)
 	$(PY) bench/bench_surrogate.py --data $(DATA)
+
+MPC_PYTORCH := $(OUT)/mpc_pytorch
+bench-control: setup ## ms per MPC step: our box-iLQR vs mpc.pytorch (installed apart, in $(OUT)/mpc_pytorch), beside the paper's 1.2 s
+	@test -d $(MPC_PYTORCH)/mpc || .venv/bin/pip install --quiet --no-deps --target $(MPC_PYTORCH) mpc==0.0.6 \
+		|| echo "mpc.pytorch could not be installed: the bench times ours only"
+	$(PY) bench/bench_control.py --data $(DATA) --mpc-path $(MPC_PYTORCH) --out $(OUT)/bench_control
+
+MODELS ?= $(OUT)/models
+NOISE ?= 0,1e-5,1e-4,1e-3
+control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 episodes per noise in NOISE (needs $(DATA))
+	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
+		--val C$$((3 - s)) --model f-coulomb --epochs 300 --out $(MODELS)/fs$$s || exit 1; done
+	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+		--model f-coulomb --epochs 300 --out $(MODELS)/fa
+	$(DEAPULL) control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 --noise $(NOISE) \
+		--data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa --sac-dir '$(MODELS)/sac{n}' \
+		--out $(OUT)/control
 
 experiments: setup ## the paper's six sliding sets for every model (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments

@@ -1,0 +1,236 @@
+"""The coin task for the MPC: f_a's dynamics in scaled units, the costs, and the MPC policy.
+
+**State and control** (scaled so that every entry is O(0.01–1)):
+ξ = (x / 1 mm, u / (0.01 m/s), V / 100 V), the coin's position and velocity and the
+voltage now applied (the DEA's state: the tip-contact model's memory is its stroke at that
+voltage); control ν = ΔV / ΔV_max ∈ [−1, 1] (the env's per-step limit). One step:
+V' = clip(V + ν ΔV_max, 0, V_max) (the env's own clipping, so V ∈ [0, V_max] holds in the
+plan as in the env), then (x', u') = f_a((x, u), (V', Δt); V, φ) with the current φ.
+
+**Costs** (:func:`coin_cost`), ℓ_t on (ξ_t, ν_t) and ℓ_T on ξ_T:
+
+* ``scaled`` (default): ½[(x − x^T)²/mm² + w ν²] with w = ``dv_weight`` (1e-3: a full
+  ΔV_max step costs as much as a 0.032 mm error held for one step), and the same position
+  term at the end. No cost on V itself: holding the coin at the target may need a high
+  steady voltage (C3: ~366 V at −1 mm).
+* ``paper``: the paper's ½[(x − x^T)² + 10⁻³ V²] in SI units (eq. 8, w_s = 1,
+  w_a = 10⁻³ on the voltage), rescaled by 10⁶ (same minimiser). At V ≈ 370 V the voltage
+  term is ~10⁸ times the position term at a 1 mm error, so this MPC keeps V near 0.
+
+**Dead zone and reach.** Below the onset voltage the model holds the coin stuck and every
+Jacobian of x with respect to the controls is 0, so iLQR cannot see that more voltage
+helps; and when the onset lies near the end of the horizon, the little motion the plan
+sees there is not worth its ΔV penalty, so iLQR settles on ΔV = 0 and the coin never
+starts (we measured exactly that). Each step the policy therefore rolls the model out
+under the full ramp (ν = 1 over the horizon). While the coin is short of the target and
+even the ramp does not bring it within the tolerance of the target inside the horizon,
+the policy applies the ramp without solving: voltage moves the coin one way only while
+it advances, so the ramp keeps the coin furthest along at every step, which is what the
+position cost asks for; the ΔV penalty alone would argue for less. Once the target is
+within the horizon's reach, the policy solves from two warm starts at once (a batch of two
+rows): the previous plan shifted by one step and the ramp, and applies the first control
+of the cheaper plan.
+
+**Velocity.** The env observes x (noisy) and V, not u. Without noise u_t = (x_t − x_{t−1})/Δt
+(exact for the backward-Euler step of f); with noise, the model's own prediction of u_t
+from the previous estimate and the applied voltages.
+"""
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field, replace
+
+import torch
+
+from deapull.control import mpc
+from deapull.control.inference import InferenceConfig, OnlineInference
+from deapull.control.policies import Policy
+from deapull.errors import InputError
+from deapull.surrogate.phi import Phi
+
+#: units of the scaled state (x in m, u in m/s, V in V)
+X_UNIT_M, U_UNIT_M_S, V_UNIT_V = 1e-3, 1e-2, 100.0
+COSTS = ("scaled", "paper")
+#: the paper's action penalty on V (eq. 8, with w_s = 1 on x in m)
+PAPER_ACTION_WEIGHT = 1e-3
+
+
+class CoinDynamics:
+    """f_a as ``dynamics(ξ (N, 3), ν (N, 1)) -> ξ' (N, 3)`` in scaled units (module docstring).
+
+    Parameters
+    ----------
+    model : Surrogate
+        f_a, kind ``f-coulomb`` or ``f``; a float64 copy with frozen weights is used.
+    phi : Phi
+        The coin to plan for (:attr:`phi` may be replaced between solves).
+    dt, dv_max_V, v_max_V : float
+        Step (s), per-step limit of |ΔV| (V) and largest voltage (V).
+    """
+
+    def __init__(self, model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float):
+        if model.kind not in ("f-coulomb", "f"):
+            raise InputError(f"the MPC plans with a physics model (f-coulomb or f), not {model.kind!r}")
+        self.model = copy.deepcopy(model).double().eval().requires_grad_(False)
+        self.phi = phi
+        self.dt, self.dv_max_V, self.v_max_V = float(dt), float(dv_max_V), float(v_max_V)
+
+    def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
+        x, u, V = xi[:, 0] * X_UNIT_M, xi[:, 1] * U_UNIT_M_S, xi[:, 2] * V_UNIT_V
+        V_next = torch.clamp(V + nu[:, 0] * self.dv_max_V, 0.0, self.v_max_V)
+        s = torch.stack([x, u], -1)
+        a = torch.stack([V_next, torch.full_like(V_next, self.dt)], -1)
+        if self.model.kind == "f-coulomb":
+            s_next, _ = self.model(s, a, V, self.phi)
+        else:
+            s_next, _ = self.model(s, a, self.phi)
+        return torch.stack([s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S, V_next / V_UNIT_V], -1)
+
+    def state(self, x_m: float, u_m_s: float, V_V: float) -> torch.Tensor:
+        """ξ (1, 3) of a coin at x (m) with velocity u (m/s) under V (V)."""
+        return torch.tensor([[x_m / X_UNIT_M, u_m_s / U_UNIT_M_S, V_V / V_UNIT_V]], dtype=torch.float64)
+
+
+def coin_cost(target_m: float, kind: str = "scaled", dv_weight: float = 1e-3, terminal_weight: float = 1.0
+              ) -> mpc.QuadCost:
+    """The MPC's cost on (ξ, ν) (module docstring); constant terms dropped."""
+    if kind not in COSTS:
+        raise InputError(f"MPC cost {kind!r}: choose one of {', '.join(COSTS)}")
+    xt = target_m / X_UNIT_M
+    if kind == "scaled":
+        w_x, w_V, w_dv = 1.0, 0.0, float(dv_weight)
+    else:
+        # ½[(x − x^T)² + 1e-3 V²] (SI) × 1e6, in ξ: x = 1e-3 ξ_0, V = 100 ξ_2
+        w_x, w_V, w_dv = 1.0, PAPER_ACTION_WEIGHT * V_UNIT_V ** 2 / X_UNIT_M ** 2, 0.0
+    C = torch.diag(torch.tensor([w_x, 0.0, w_V, w_dv], dtype=torch.float64))
+    c = torch.tensor([-w_x * xt, 0.0, 0.0, 0.0], dtype=torch.float64)
+    return mpc.QuadCost(C, c, terminal_weight * C[:3, :3].clone(), terminal_weight * c[:3].clone())
+
+
+@dataclass(frozen=True)
+class MPCConfig:
+    """Settings of the MPC policy.
+
+    Attributes
+    ----------
+    horizon, iterations : int
+        Steps planned ahead and iLQR iterations per control step (paper: 20, 20).
+    cost : {"scaled", "paper"}
+    dv_weight : float
+        w of the scaled cost.
+    terminal_weight : float
+        Weight of the final position term relative to a stage's.
+    infer : bool
+        Infer φ online (Algorithm 2) and plan with the current estimate; otherwise plan with
+        the φ given to the policy.
+    inference : InferenceConfig
+    """
+
+    horizon: int = 20
+    iterations: int = 20
+    cost: str = "scaled"
+    dv_weight: float = 1e-3
+    terminal_weight: float = 1.0
+    infer: bool = True
+    inference: InferenceConfig = field(default_factory=lambda: InferenceConfig(optimizer="lm"))
+
+    def __post_init__(self):
+        if self.horizon < 1 or self.iterations < 0:
+            raise InputError(f"MPC horizon {self.horizon} must be >= 1 and iterations {self.iterations} >= 0")
+        if self.cost not in COSTS:
+            raise InputError(f"MPC cost {self.cost!r}: choose one of {', '.join(COSTS)}")
+
+
+class MPCPolicy(Policy):
+    """Model-predictive control on f_a with the inferred φ (paper Algorithm 2, MPC branch).
+
+    Parameters
+    ----------
+    model : Surrogate
+        f_a (``f-coulomb`` or ``f``), e.g. trained on C3..C8.
+    config : MPCConfig
+    phi : Phi, optional
+        The coin to plan for when ``config.infer`` is False (e.g. the true one, for an
+        oracle run); with inference on, ignored.
+
+    Attributes
+    ----------
+    solve_ms : list of float
+        Wall time of each step's MPC (plan only; inference not included), ms.
+    inference_ms : list of float
+        Wall time of each step's inference update, ms.
+    """
+
+    name = "mpc"
+
+    def __init__(self, model, config: MPCConfig = MPCConfig(), phi: Phi | None = None):
+        self.model, self.config = model, config
+        if not config.infer and phi is None:
+            raise InputError("an MPC without inference needs the φ to plan with")
+        self.fixed_phi = None if phi is None else model.check_phi(phi).to(dtype=torch.float64)
+        self.inference = None
+        self.env = None
+
+    def reset(self, env) -> None:
+        cfg = self.config
+        self.env, self.target_m, self.tolerance_m = env, float(env.target_m), float(env.tolerance_m)
+        self.dt, self.dv_max_V, self.v_max_V = float(env.plant.dt), float(env.dv_max_V), float(env.v_max_V)
+        noise = float(getattr(env, "noise_std_m", 0.0))
+        self.noisy = noise > 0
+        if cfg.infer:
+            # a transition counts as moving (stick hinge) only beyond 3 noise stds
+            settings = replace(cfg.inference, motion_threshold_m=max(cfg.inference.motion_threshold_m, 3 * noise))
+            if self.inference is None or self.inference.dt != self.dt or self.inference.config != settings:
+                self.inference = OnlineInference(self.model, settings, self.dt)
+            self.inference.reset()
+        phi = self.inference.phi if cfg.infer else self.fixed_phi
+        self.dynamics = CoinDynamics(self.model, phi, self.dt, self.dv_max_V, self.v_max_V)
+        self.cost = coin_cost(self.target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight)
+        self.plan = None
+        self.previous = None          # (x, u, V) estimate of the previous step
+        self.solve_ms, self.inference_ms = [], []
+
+    def inferred(self) -> dict:
+        return self.inference.estimate() if self.inference is not None else {}
+
+    def _velocity(self, x: float, V: float) -> float:
+        if self.previous is None:
+            return 0.0
+        x0, u0, V0 = self.previous
+        if not self.noisy:
+            return (x - x0) / self.dt
+        with torch.no_grad():
+            return float(self.dynamics(self.dynamics.state(x0, u0, V0),
+                                       torch.tensor([[(V - V0) / self.dv_max_V]], dtype=torch.float64))[0, 1]
+                         * U_UNIT_M_S)
+
+    @torch.no_grad()
+    def act(self, obs, info) -> float:
+        cfg = self.config
+        x, V = self.env.position_of(obs), float(info["V_V"])
+        if cfg.infer:
+            start = time.perf_counter()
+            self.inference.observe(x, V)
+            self.inference.update()
+            self.dynamics.phi = self.inference.phi
+            self.inference_ms.append(1e3 * (time.perf_counter() - start))
+        start = time.perf_counter()
+        u = self._velocity(x, V)
+        self.previous = (x, u, V)
+        xi0 = self.dynamics.state(x, u, V)
+        T = cfg.horizon
+        ramp = torch.ones(1, T, 1, dtype=torch.float64)
+        out_of_reach = False
+        if x - self.target_m > self.tolerance_m:
+            reach = mpc.rollout(self.dynamics, xi0, ramp)[0, :, 0] * X_UNIT_M
+            out_of_reach = bool(reach.min() > self.target_m + self.tolerance_m)
+        if out_of_reach:
+            self.plan = ramp
+        else:
+            warm = mpc.shift(self.plan) if self.plan is not None else ramp
+            sol = mpc.solve(self.dynamics, self.cost, xi0.repeat(2, 1), torch.cat([warm, ramp]), -1.0, 1.0,
+                            iterations=cfg.iterations)
+            self.plan = sol.u[int(sol.cost.argmin())].unsqueeze(0)
+        self.solve_ms.append(1e3 * (time.perf_counter() - start))
+        return float(self.plan[0, 0, 0]) * self.dv_max_V

@@ -1,0 +1,108 @@
+"""``deapull control``: bad arguments exit 2 with one line naming the argument before any
+work; a run writes the CSV, the table beside the paper's numbers and the figures; (``fem``)
+a short episode on the FEM plant of a tiny mesh."""
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from deapull.workflows.cli import main
+from tests.conftest import TINY_MESH
+
+
+def _rows(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture
+def base(tmp_path, sweep_dir, fs1_dir):
+    """Arguments of a valid surrogate run (the fixture's model and data)."""
+    return ["control", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--plant-model", str(fs1_dir),
+            "--out", str(tmp_path / "out"), "--no-progress"]
+
+
+@pytest.mark.parametrize("change, named", [
+    (["--policy", "lqr"], "--policy 'lqr'"),
+    (["--plant", "mujoco:C1"], "--plant 'mujoco:C1'"),
+    (["--plant", "surrogate:C9"], "unknown setup 'C9'"),
+    (["--plant", "surrogate"], "--plant 'surrogate'"),
+    (["--noise=-1e-4"], "--noise '-1e-4'"),
+    (["--noise", "0,-0.001"], "--noise '-0.001'"),
+    (["--noise", "loud"], "--noise 'loud'"),
+    (["--plant-model", "{tmp}/nowhere"], "--plant-model"),
+    (["--data", "{tmp}"], "--data"),
+    (["--episodes", "0"], "--episodes 0"),
+    (["--dv-max", "0"], "--dv-max 0"),
+    (["--target-mm", "1"], "--target-mm 1"),
+    (["--max-steps", "-3"], "--max-steps -3"),
+    (["--threads", "0"], "--threads 0"),
+])
+def test_bad_arguments_exit_2_with_one_line_naming_them_before_any_work(base, tmp_path, capsys, change, named):
+    argv = [*base, "--policy", "pd"] + [c.replace("{tmp}", str(tmp_path)) for c in change]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and named in err, err
+    assert not (tmp_path / "out").exists()                 # refused before any output
+
+
+@pytest.mark.parametrize("change, named", [
+    (["--mpc-model", "{tmp}/nowhere"], "--mpc-model"),
+    (["--mpc-cost", "lavish"], "--mpc-cost 'lavish'"),
+])
+def test_bad_mpc_arguments_exit_2(base, tmp_path, capsys, fs1_dir, change, named):
+    argv = [*base, "--policy", "mpc", "--mpc-model", str(fs1_dir)] + [c.replace("{tmp}", str(tmp_path)) for c in change]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and named in err, err
+
+
+def test_mpc_runs_through_the_harness_and_reports_its_inference(base, tmp_path, fs1_dir):
+    """Three iterations of the MPC (deapull.control.task) on the fixture's plant: the row
+    carries its inferred φ and its own plan and inference times, and the inferred-φ figure
+    is drawn (the MPC itself is tested in test_mpc.py)."""
+    out = tmp_path / "out"
+    argv = [*base, "--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3",
+            "--hold", "0", "--target-mm", "-0.4"]
+    assert main(argv) == 0
+    (row,) = _rows(out / "control.csv")
+    assert row["policy"] == "mpc" and row["steps_run"] == "3"
+    assert float(row["inferred_mass_kg"]) > 0 and float(row["inferred_mu_b"]) > 0
+    assert float(row["solve_ms_per_iteration"]) > 0 and float(row["inference_ms_per_iteration"]) > 0
+    assert (out / "inferred_surrogate_C1_noise0.png").is_file()
+
+
+def test_control_run_writes_csv_table_and_figures(base, tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = [*base, "--policy", "pd,heur", "--episodes", "2", "--noise", "0,1e-5", "--target-mm", "-0.4",
+            "--max-steps", "700", "--hold", "20"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "paper: iterations" in printed and "~1,500" in printed and "~500" in printed
+    rows = _rows(out / "control.csv")
+    assert len(rows) == 8 and {r["policy"] for r in rows} == {"pd", "heur"}
+    assert {(r["noise_std_m"], r["seed"]) for r in rows} == {(n, s) for n in ("0.0", "1e-05") for s in ("0", "1")}
+    for column in ("iterations_to_target", "settled", "final_abs_error_m", "ms_per_iteration", "true_mass_kg",
+                   "inferred_mass_kg"):
+        assert column in rows[0]
+    heur = [r for r in rows if r["policy"] == "heur"]
+    assert all(r["reached"] == "True" and 300 < int(r["iterations_to_target"]) < 700 for r in heur)
+    assert all(r["settled"] == "False" for r in heur)      # the ramp goes on through the window
+    assert (out / "table.md").read_text().count("\n") == 2 + 4
+    for stem in ("position", "voltage"):
+        for noise in ("0", "1e-05"):
+            assert (out / f"{stem}_surrogate_C1_noise{noise}.png").stat().st_size > 10_000
+    assert (out / "traces.npz").is_file() and (out / "run.json").is_file()
+
+
+@pytest.mark.fem
+def test_control_on_the_fem_plant_of_a_tiny_mesh(tmp_path):
+    out = tmp_path / "out"
+    argv = ["control", "--policy", "heur", "--plant", "fem:C1", "--episodes", "1", "--max-steps", "5", "--hold", "0",
+            "--out", str(out), "--no-progress", *[a for s in TINY_MESH for a in ("--set", s)]]
+    assert main(argv) == 0
+    (row,) = _rows(out / "control.csv")
+    assert row["plant"] == "fem:C1" and row["status"] == "ok" and row["steps_run"] == "5"
+    assert float(row["final_V_V"]) == pytest.approx(2.5) and float(row["true_mass_kg"]) > 1e-3
+    assert (out / "fem" / "C1" / "mesh").is_dir()

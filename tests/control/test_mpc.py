@@ -1,0 +1,315 @@
+"""The batched box-iLQR (deapull.control.mpc) against independent solutions: an LQ problem
+by a Riccati recursion written here in NumPy, box-constrained problems by brute force on a
+grid, box QPs by their KKT conditions, and its derivatives by finite differences."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from deapull.control import mpc
+
+F64 = torch.float64
+
+
+def lq_problem(B=3, T=8, n=4, m=2, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    A = torch.eye(n, dtype=F64) + 0.2 * torch.randn(n, n, generator=g, dtype=F64)
+    Bm = torch.randn(n, m, generator=g, dtype=F64)
+    M = torch.randn(n + m, n + m, generator=g, dtype=F64)
+    C = M @ M.T / (n + m) + 0.1 * torch.eye(n + m, dtype=F64)
+    c = torch.randn(n + m, generator=g, dtype=F64)
+    Cf = torch.eye(n, dtype=F64) * 2.0
+    cf = torch.randn(n, generator=g, dtype=F64)
+    x0 = torch.randn(B, n, generator=g, dtype=F64)
+    return A, Bm, mpc.QuadCost(C, c, Cf, cf), x0
+
+
+def riccati(A, Bm, C, c, Cf, cf, x0, T):
+    """Finite-horizon LQR with linear terms (NumPy): optimal u (T, m) from x0."""
+    n, m = Bm.shape
+    P, p = Cf.copy(), cf.copy()
+    Ks, ks = [], []
+    for _ in range(T):
+        Qxx = C[:n, :n] + A.T @ P @ A
+        Quu = C[n:, n:] + Bm.T @ P @ Bm
+        Qux = C[n:, :n] + Bm.T @ P @ A
+        qx, qu = c[:n] + A.T @ p, c[n:] + Bm.T @ p
+        K, k = -np.linalg.solve(Quu, Qux), -np.linalg.solve(Quu, qu)
+        P = Qxx + Qux.T @ K
+        p = qx + Qux.T @ k
+        Ks.insert(0, K)
+        ks.insert(0, k)
+    x, us = x0, []
+    for K, k in zip(Ks, ks):
+        us.append(K @ x + k)
+        x = A @ x + Bm @ us[-1]
+    return np.array(us)
+
+
+def test_lq_problem_is_solved_exactly_in_one_iteration():
+    T = 8
+    A, Bm, cost, x0 = lq_problem(T=T)
+    sol = mpc.solve(lambda x, u: x @ A.T + u @ Bm.T, cost, x0, torch.zeros(3, T, 2, dtype=F64), iterations=1)
+    for b in range(3):
+        ref = riccati(*(t.numpy() for t in (A, Bm, cost.C, cost.c, cost.C_final, cost.c_final, x0[b])), T)
+        np.testing.assert_allclose(sol.u[b].numpy(), ref, rtol=1e-9, atol=1e-10)
+    # further iterations keep it (no step improves on the optimum)
+    again = mpc.solve(lambda x, u: x @ A.T + u @ Bm.T, cost, x0, sol.u, iterations=3)
+    torch.testing.assert_close(again.u, sol.u, rtol=0, atol=1e-10)
+
+
+def test_linearize_gives_every_rows_jacobian_in_one_pass():
+    def dyn(x, u):
+        # data-dependent branches (no vmap possible) and coupling between x and u
+        y = torch.where(x[:, :1] > 0, torch.sin(x) * u, x ** 2 + u)
+        return y + torch.stack([x[:, 1] * u[:, 0], x[:, 0] ** 3], 1)
+    g = torch.Generator().manual_seed(1)
+    x, u = torch.randn(2, 5, 2, generator=g, dtype=F64), torch.randn(2, 5, 1, generator=g, dtype=F64)
+    A, Bu = mpc.linearize(dyn, x, u)
+    for b, t in itertools.product(range(2), range(5)):
+        ja, jb = torch.autograd.functional.jacobian(lambda xx, uu: dyn(xx[None], uu[None])[0], (x[b, t], u[b, t]))
+        torch.testing.assert_close(A[b, t], ja)
+        torch.testing.assert_close(Bu[b, t], jb)
+
+
+def test_box_qp_meets_the_kkt_conditions():
+    g = torch.Generator().manual_seed(2)
+    M = torch.randn(200, 3, 3, generator=g, dtype=F64)
+    H = M @ M.transpose(-1, -2) + 0.05 * torch.eye(3, dtype=F64)
+    q = 3 * torch.randn(200, 3, generator=g, dtype=F64)
+    lo, hi = -torch.rand(200, 3, generator=g, dtype=F64), torch.rand(200, 3, generator=g, dtype=F64)
+    x, free, ok = mpc.box_qp(H, q, lo, hi)
+    assert ok.all()
+    grad = (H @ x.unsqueeze(-1))[..., 0] + q
+    assert ((x >= lo - 1e-12) & (x <= hi + 1e-12)).all()
+    at_lo, at_hi = x <= lo + 1e-9, x >= hi - 1e-9
+    assert (grad[free].abs() < 1e-7).all(), grad[free].abs().max()
+    assert (grad[at_lo & ~free] > -1e-7).all() and (grad[at_hi & ~free] < 1e-7).all()
+    assert (at_lo | at_hi | free).all()
+
+
+def pendulum(x, u, dt=0.1):
+    """A damped pendulum (angle, rate), torque u: nonlinear, bounds matter."""
+    th, w = x[:, 0], x[:, 1]
+    w_next = w + dt * (-2.0 * torch.sin(th) - 0.3 * w + u[:, 0])
+    return torch.stack([th + dt * w_next, w_next], 1)
+
+
+def test_box_bounds_against_brute_force_on_a_tiny_horizon():
+    T, bound = 3, 1.0
+    cost = mpc.QuadCost(torch.diag(torch.tensor([4.0, 0.2, 0.05], dtype=F64)),
+                        torch.tensor([-4.0 * 1.2, 0.0, 0.0], dtype=F64),  # ½·4(θ − 1.2)² up to a constant
+                        torch.diag(torch.tensor([40.0, 1.0], dtype=F64)),
+                        torch.tensor([-40.0 * 1.2, 0.0], dtype=F64))
+    x0 = torch.tensor([[0.2, 0.0], [1.0, 0.5], [-0.3, 2.0]], dtype=F64)
+    sol = mpc.solve(pendulum, cost, x0, torch.zeros(3, T, 1, dtype=F64), -bound, bound, iterations=30, gains=True)
+    # a control held at its bound gets no feedback (Tassa et al.'s clamped set)
+    at_bound = sol.u.abs() >= bound - 1e-12
+    assert not sol.gains.free[at_bound].any() and (sol.gains.K[at_bound[..., 0]] == 0).all()
+    grid = torch.linspace(-bound, bound, 81, dtype=F64)
+    U = torch.cartesian_prod(grid, grid, grid).reshape(-1, T, 1)
+    for b in range(3):
+        J = mpc.total_cost(cost, mpc.rollout(pendulum, x0[b].expand(len(U), 2), U), U)
+        best = int(J.argmin())
+        assert float(sol.cost[b]) <= float(J[best]) + 1e-12
+        # the grid's best point lies within one grid spacing of the plan, bounds included
+        assert (sol.u[b] - U[best]).abs().max() <= 2 / 80 + 1e-9
+    assert (sol.u.abs() <= bound).all() and (sol.u.abs() == bound).any(), "the bounds should be active here"
+
+
+def test_two_controls_with_bounds_against_brute_force():
+    def dyn(x, u):
+        return torch.stack([x[:, 0] + 0.5 * u[:, 0] + 0.1 * torch.tanh(u[:, 1]), x[:, 1] + 0.3 * u[:, 1] * u[:, 0]
+                            + 0.2 * u[:, 1]], 1)
+    cost = mpc.QuadCost(torch.diag(torch.tensor([1.0, 1.0, 0.1, 0.1], dtype=F64)),
+                        torch.tensor([-2.0, 1.0, 0.0, 0.0], dtype=F64), torch.eye(2, dtype=F64) * 5,
+                        torch.tensor([-10.0, 5.0], dtype=F64))
+    lo, hi = torch.tensor([-0.5, -1.0], dtype=F64), torch.tensor([0.8, 0.3], dtype=F64)
+    x0 = torch.zeros(1, 2, dtype=F64)
+    sol = mpc.solve(dyn, cost, x0, torch.zeros(1, 2, 2, dtype=F64), lo, hi, iterations=40)
+    a, b = torch.linspace(-0.5, 0.8, 27, dtype=F64), torch.linspace(-1.0, 0.3, 27, dtype=F64)
+    U = torch.cartesian_prod(a, b, a, b)[:, [0, 1, 2, 3]].reshape(-1, 2, 2)
+    J = mpc.total_cost(cost, mpc.rollout(dyn, x0.expand(len(U), 2), U), U)
+    assert float(sol.cost[0]) <= float(J.min()) + 1e-12
+    assert (sol.u[0] - U[int(J.argmin())]).abs().max() <= 1.3 / 26 + 1e-9
+    assert ((sol.u >= lo) & (sol.u <= hi)).all()
+
+
+def test_rows_are_independent_problems_with_their_own_parameters():
+    """Row r of every dynamics call belongs to batch row r mod B (per-row parameters)."""
+    gain = torch.tensor([0.5, 1.0, 2.0], dtype=F64)
+
+    def dyn(x, u):
+        k = gain.repeat(x.shape[0] // 3)
+        return torch.stack([x[:, 0] + 0.1 * k * torch.sin(u[:, 0]), x[:, 1] + 0.1 * x[:, 0]], 1)
+    cost = mpc.QuadCost(torch.diag(torch.tensor([1.0, 1.0, 0.01], dtype=F64)), torch.tensor([-1.0, 0, 0], dtype=F64))
+    x0 = torch.tensor([[0.0, 0.0], [0.1, 0.0], [0.2, -0.1]], dtype=F64)
+    together = mpc.solve(dyn, cost, x0, torch.zeros(3, 6, 1, dtype=F64), -1.0, 1.0)
+    for b in range(3):
+        one = mpc.solve(lambda x, u, b=b: torch.stack([x[:, 0] + 0.1 * gain[b] * torch.sin(u[:, 0]),
+                                                      x[:, 1] + 0.1 * x[:, 0]], 1),
+                        cost, x0[b:b + 1], torch.zeros(1, 6, 1, dtype=F64), -1.0, 1.0)
+        torch.testing.assert_close(together.u[b], one.u[0], rtol=0, atol=1e-10)
+
+
+def pendulum_problem():
+    cost = mpc.QuadCost(torch.diag(torch.tensor([1.0, 0.1, 0.5], dtype=F64)), torch.tensor([-1.0, 0.0, 0.0], dtype=F64),
+                        torch.diag(torch.tensor([10.0, 1.0], dtype=F64)), torch.tensor([-10.0, 0.0], dtype=F64))
+    return cost, torch.tensor([[0.3, 0.1]], dtype=F64)
+
+
+def converged(x0, cost, dynamics=pendulum, T=10):
+    return mpc.solve(dynamics, cost, x0, torch.zeros(x0.shape[0], T, 1, dtype=F64), -3.0, 3.0, iterations=60,
+                     gains=True)
+
+
+def test_value_gradient_matches_finite_differences():
+    cost, x0 = pendulum_problem()
+    sol = converged(x0, cost)
+    assert sol.gains.free[0, 0].all(), "the test needs u*_0 off its bounds"
+    h = 1e-6
+    for i in range(2):
+        e = torch.zeros_like(x0)
+        e[0, i] = h
+        up, down = converged(x0 + e, cost), converged(x0 - e, cost)
+        dJ = (up.cost[0] - down.cost[0]) / (2 * h)
+        # exact (envelope theorem); iLQR's gain K drops the dynamics' second derivatives
+        # (15 % off on this pendulum), so K is checked on an LQ problem only
+        assert float(dJ) == pytest.approx(float(sol.gains.vx0[0, i]), rel=1e-5, abs=1e-7)
+        _, dJ_dx0, _ = mpc.value_and_grad(pendulum, cost, x0, sol.u)
+        assert float(dJ) == pytest.approx(float(dJ_dx0[0, i]), rel=1e-5, abs=1e-7)
+
+
+def test_feedback_gain_is_exact_for_an_lq_problem():
+    T = 6
+    A, Bm, cost, x0 = lq_problem(B=1, T=T, n=3, m=1, seed=4)
+    dyn = lambda x, u: x @ A.T + u @ Bm.T  # noqa: E731
+    sol = mpc.solve(dyn, cost, x0, torch.zeros(1, T, 1, dtype=F64), iterations=1, gains=True)
+    h = 1e-4
+    for i in range(3):
+        e = torch.zeros_like(x0)
+        e[0, i] = h
+        du0 = (mpc.solve(dyn, cost, x0 + e, sol.u, iterations=1).u - mpc.solve(dyn, cost, x0 - e, sol.u,
+                                                                               iterations=1).u)[0, 0, 0] / (2 * h)
+        assert float(du0) == pytest.approx(float(sol.gains.K[0, 0, 0, i]), rel=1e-7, abs=1e-10)
+
+
+def test_parameter_gradient_of_the_optimal_cost_matches_finite_differences():
+    cost, x0 = pendulum_problem()
+    damping = torch.tensor(0.3, dtype=F64, requires_grad=True)
+
+    def dyn(x, u, d=damping):
+        w_next = x[:, 1] + 0.1 * (-2.0 * torch.sin(x[:, 0]) - d * x[:, 1] + u[:, 0])
+        return torch.stack([x[:, 0] + 0.1 * w_next, w_next], 1)
+    sol = converged(x0, cost, dyn)
+    _, _, (dJ_dd,) = mpc.value_and_grad(dyn, cost, x0, sol.u, wrt=(damping,))
+    h = 1e-5
+    Jp = converged(x0, cost, lambda x, u: dyn(x, u, damping.detach() + h)).cost
+    Jm = converged(x0, cost, lambda x, u: dyn(x, u, damping.detach() - h)).cost
+    assert float((Jp - Jm) / (2 * h)) == pytest.approx(float(dJ_dd), rel=1e-5)
+
+
+def test_general_cost_matches_the_same_quadratic_cost():
+    A, Bm, cost, x0 = lq_problem(B=2, T=5, n=3, m=1, seed=5)
+    C, c, Cf, cf = cost.C, cost.c, cost.C_final, cost.c_final
+    general = mpc.GeneralCost(lambda x, u, t: 0.5 * torch.cat([x, u]) @ C @ torch.cat([x, u]) + c @ torch.cat([x, u]),
+                              lambda x: 0.5 * x @ Cf @ x + cf @ x)
+    dyn = lambda x, u: torch.tanh(x @ A.T) + u @ Bm.T  # noqa: E731
+    u0 = torch.zeros(2, 5, 1, dtype=F64)
+    a, b = mpc.solve(dyn, cost, x0, u0, -1, 1, iterations=8), mpc.solve(dyn, general, x0, u0, -1, 1, iterations=8)
+    torch.testing.assert_close(a.u, b.u, rtol=0, atol=1e-12)
+    torch.testing.assert_close(a.cost, b.cost)
+
+
+def test_cost_never_rises_and_the_shifted_plan_warm_starts():
+    cost, x0 = pendulum_problem()
+    sol = mpc.solve(pendulum, cost, x0, torch.zeros(1, 10, 1, dtype=F64), -3.0, 3.0, iterations=20)
+    assert (sol.history[:, 1:] <= sol.history[:, :-1]).all()
+    nxt = mpc.shift(sol.u)
+    assert torch.equal(nxt[:, :-1], sol.u[:, 1:]) and torch.equal(nxt[:, -1], sol.u[:, -1])
+    # from the next state, the shifted plan starts far closer to the optimum than zeros
+    cold = mpc.solve(pendulum, cost, sol.x[:, 1], torch.zeros(1, 10, 1, dtype=F64), -3.0, 3.0, iterations=0)
+    warm = mpc.solve(pendulum, cost, sol.x[:, 1], nxt, -3.0, 3.0, iterations=0)
+    full = mpc.solve(pendulum, cost, sol.x[:, 1], nxt, -3.0, 3.0, iterations=40)
+    assert float(warm.cost) - float(full.cost) < 0.05 * (float(cold.cost) - float(full.cost))
+
+
+# --- the coin task (deapull.control.task) -------------------------------------------------
+
+TRUTH_PHI = (1.36e-3, 0.2, 0.5)
+
+
+@pytest.fixture(scope="module")
+def coulomb(trained):
+    return trained("f-coulomb").model
+
+
+def test_coin_dynamics_is_the_models_step_in_scaled_units(coulomb):
+    from deapull.control.task import CoinDynamics
+    from deapull.surrogate.phi import Phi
+    phi = Phi(*TRUTH_PHI).to(dtype=F64)
+    dyn = CoinDynamics(coulomb, phi, 1e-3, 5.0, 400.0)
+    g = torch.Generator().manual_seed(0)
+    x = -3e-4 * torch.rand(64, generator=g, dtype=F64)
+    u = -0.01 * torch.rand(64, generator=g, dtype=F64)
+    V = 400 * torch.rand(64, generator=g, dtype=F64)
+    nu = 2 * torch.rand(64, 1, generator=g, dtype=F64) - 1
+    V[:4], nu[:4, 0] = torch.tensor([0.0, 2.0, 398.0, 400.0], dtype=F64), torch.tensor([-1.0, -1, 1, 1], dtype=F64)
+    xi = torch.cat([dyn.state(float(a), float(b), float(c)) for a, b, c in zip(x, u, V)])
+    out = dyn(xi, nu)
+    m = dyn.model
+    V_next = torch.clamp(V + 5.0 * nu[:, 0], 0, 400)
+    stroke, _ = m.material_response(V)
+    s, _, _ = m.step(torch.stack([x, u], 1), torch.stack([V_next, torch.full_like(V, 1e-3)], 1),
+                     torch.stack([V, stroke], 1), phi)
+    torch.testing.assert_close(out[:, 0] * 1e-3, s[:, 0], rtol=1e-12, atol=1e-18)
+    torch.testing.assert_close(out[:, 1] * 1e-2, s[:, 1], rtol=1e-12, atol=1e-15)
+    torch.testing.assert_close(out[:, 2] * 100, V_next)
+
+
+def test_paper_cost_is_the_papers_up_to_scale_and_constant():
+    from deapull.control.task import coin_cost
+    paper, scaled = coin_cost(-1e-3, "paper"), coin_cost(-1e-3, "scaled", dv_weight=0.5)
+    xi = torch.tensor([[[-0.4, 0.3, 3.7], [-1.2, 0.0, 0.5]]], dtype=F64)    # mm, 0.01 m/s, 100 V
+    nu = torch.tensor([[[0.2], [-1.0]]], dtype=F64)
+    x_m, V = xi[..., 0] * 1e-3, xi[..., 2] * 100
+    expect = 0.5 * ((x_m + 1e-3) ** 2 + 1e-3 * V ** 2) * 1e6 - 0.5 * 1.0
+    torch.testing.assert_close(paper.stage(xi, nu), expect)
+    torch.testing.assert_close(scaled.stage(xi, nu), 0.5 * ((xi[..., 0] + 1) ** 2 + 0.5 * nu[..., 0] ** 2) - 0.5)
+
+
+def episode(policy, env, seed=0):
+    from deapull.control.env import policy_view
+    obs, info = env.reset(seed=seed)
+    policy.reset(env)
+    actions = []
+    while True:
+        actions.append(policy.act(obs, policy_view(info)))
+        obs, _, terminated, truncated, info = env.step(env.action_of(actions[-1]))
+        if terminated or truncated:
+            return info, actions
+
+
+@pytest.mark.parametrize("infer", [False, True])
+def test_mpc_drives_a_surrogate_plant_to_the_target(coulomb, infer):
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.plants import SurrogatePlant
+    from deapull.control.task import MPCConfig, MPCPolicy
+    from deapull.surrogate.phi import Phi
+    truth = Phi(*TRUTH_PHI)
+    env = CoinPushEnv(SurrogatePlant(coulomb, truth), target_m=-2e-4, max_steps=120)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=infer), phi=truth)
+    info, actions = episode(policy, env)
+    assert info["success"], (info["error_m"], info["V_V"])
+    # the approach is the ramp at the limit, then the MPC eases off
+    assert actions[0] == pytest.approx(5.0) and min(actions[-3:]) < 5.0
+    print(f"infer={infer}: reached at step {env.reached_step}, inferred {policy.inferred()}")
+    if infer:
+        # planned with the estimate, updated every step from the paper's start
+        log = policy.inference.log      # one update per step once the coin has moved
+        assert 0 < len(log) < env.steps and [r["iteration"] for r in log] == list(range(1, len(log) + 1))
+        est = policy.inferred()
+        assert all(est[f] != policy.config.inference.initial[f] for f in est)

@@ -1,0 +1,74 @@
+"""Sub-command of the control stage: ``control`` (closed-loop episodes, paper §VI-B).
+
+Every argument is checked before any model is loaded or any step taken; bad input raises
+:class:`deapull.errors.InputError`, which the ``deapull`` entry point prints as one line
+and maps to exit status 2. torch, gymnasium and dolfinx are imported only when a run starts.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def cmd_control(args) -> int:
+    from deapull.errors import InputError
+    from deapull.workflows import control
+    if args.threads < 1:
+        raise InputError(f"--threads {args.threads} must be at least 1")
+    config = control.ControlConfig(
+        policies=control.parse_policies(args.policy),
+        plants=control.parse_plants(args.plant, args.scene),
+        noises=control.parse_noises(args.noise),
+        out=Path(args.out), episodes=args.episodes, seed=args.seed, dv_max_V=args.dv_max,
+        max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm, data=Path(args.data),
+        plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
+        mpc_oracle=args.mpc_oracle, sac_dir=args.sac_dir, sac_steps=args.sac_steps,
+        scene=args.scene, overrides=args.overrides, progress=not args.no_progress)
+    import torch
+    torch.set_num_threads(args.threads)
+    episodes = control.run(config)
+    print(control.summary_table([e.row for e in episodes]))
+    print(f"wrote {config.out}/control.csv, table.md, traces.npz, run.json and the figures")
+    return 0
+
+
+def register(sub) -> None:
+    """Add ``control`` to the ``deapull`` sub-parsers."""
+    p = sub.add_parser("control", help="closed-loop control episodes: MPC, SAC, PD, heuristic on surrogate or "
+                                       "FEM plants (CSV, table beside the paper, Fig. 6 plots)")
+    p.add_argument("--policy", required=True,
+                   help="policy or comma-separated policies: mpc, sac, pd (K_p -0.5, K_d 5 V/mm), heur (+0.5 V/step)")
+    p.add_argument("--plant", required=True,
+                   help="plant(s) KIND:SETUP, comma-separated: surrogate:C1 (the paper's f_s,1), fem:C1 (the FEM "
+                        "stepped online)")
+    p.add_argument("--noise", default="0",
+                   help="std(s) of the Gaussian noise on the observed x (m), comma-separated, e.g. 0,1e-5,1e-4,1e-3 "
+                        "(default 0; the paper: 1e-3)")
+    p.add_argument("--episodes", type=int, default=10, help="episodes per policy, plant and noise (default 10)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--seed", type=int, default=0, help="episode i uses seed SEED + i (noise, plant) (default 0)")
+    p.add_argument("--dv-max", type=float, default=5.0,
+                   help="largest |dV| per 1 ms step, the same for every policy (V; default 5)")
+    p.add_argument("--max-steps", type=int, default=4000, help="steps before an episode counts as failed (4000)")
+    p.add_argument("--hold", type=int, default=100,
+                   help="steps run after the first success to judge settling (default 100)")
+    p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position x^T (mm; default -1)")
+    p.add_argument("--data", default="data", help="folder with <setup>.nc: the surrogate plants' coin φ (data)")
+    p.add_argument("--plant-model", default="out/models/fs{n}",
+                   help="surrogate plant model folder; {setup} -> C1, {n} -> 1 (default out/models/fs{n})")
+    p.add_argument("--mpc-model", default="out/models/fa",
+                   help="the MPC's model f_a, f-coulomb or f trained on C3..C8 (default out/models/fa)")
+    p.add_argument("--mpc-cost", default="scaled",
+                   help="the MPC's cost: scaled (default) or paper (1e-3 V^2 beside (x - x^T)^2 in SI)")
+    p.add_argument("--mpc-oracle", action="store_true",
+                   help="the MPC plans with the plant's true coin instead of inferring it online")
+    p.add_argument("--sac-dir", default="out/models/sac{n}",
+                   help="trained SAC policy folder; trained there on the surrogate plant when absent "
+                        "(default out/models/sac{n})")
+    p.add_argument("--sac-steps", type=int, default=30000,
+                   help="SAC training budget in env steps when it is trained here (30000: ~13 min on one core)")
+    p.add_argument("--scene", default="coin_pull", help="scene of the setups and of the FEM plant (coin_pull)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one key of the FEM plant's scene (validated like the file); repeatable")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_control)

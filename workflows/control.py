@@ -1,0 +1,457 @@
+"""The closed-loop experiment of ``deapull control``: policies × plants × noise levels, N
+episodes each, on the coin-push env (paper §VI-B, Fig. 6).
+
+Every argument is checked by :func:`check` before any model is loaded or any step taken
+(bad input raises :class:`~deapull.errors.InputError`). Each episode starts from the coin
+at rest at 0 V with seed ``seed + i`` (the same seeds for every policy), runs until the
+true |x − x^T| first drops below the tolerance (*iterations to target*) or the step limit,
+and then ``hold`` more steps: *settled* means the coin stayed inside the window for all of
+them. The policy's time per iteration is the wall time of its ``act``.
+
+Outputs in ``--out`` (every file written atomically):
+
+* ``control.csv`` — one row per episode (:data:`COLUMNS`, plus the true and the inferred φ);
+* ``table.md`` — per policy, plant and noise: reached/settled counts, iterations to target,
+  final error and time per iteration, beside the paper's numbers (:data:`PAPER`);
+* ``position_<plant>_noise<σ>.png`` — the paper's Fig. 6: mean coin position per policy
+  with its 25–75 % band over the episodes; ``voltage_<plant>_noise<σ>.png`` — V(t);
+  ``inferred_<plant>_noise<σ>.png`` — inferred φ per iteration beside the true value
+  (policies that infer);
+* ``traces.npz`` — every episode's x, V (and inferred φ) per step; ``run.json`` — the
+  configuration, versions and commit.
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+import re
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from deapull import provenance
+from deapull import scene as scenes
+from deapull.errors import InputError
+from deapull.io import atomic_write, markdown_table, write_csv, write_json, write_text
+
+POLICIES = ("mpc", "sac", "pd", "heur")
+PLANT_KINDS = ("surrogate", "fem")
+#: the paper's results (§VI-B): iterations to target and time per iteration
+PAPER = {"mpc": ("≤ 200", 1200.0), "sac": ("~10,000", 5.0), "pd": ("~1,500", 1.0), "heur": ("~500", None)}
+#: φ fields reported (true and inferred)
+PHI_FIELDS = ("mass_kg", "mu_b", "mu_t", "v_threshold_V")
+COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max_V", "step_limit", "hold_steps",
+           "iterations_to_target", "reached", "settled", "final_abs_error_m", "final_x_m", "final_V_V", "steps_run",
+           "ms_per_iteration", "solve_ms_per_iteration", "inference_ms_per_iteration", "plant_ms_per_step",
+           "training_steps", "status")
+#: per-iteration wall times (lists of ms) that a policy may keep: the MPC's plan and inference
+TIMED = ("solve_ms", "inference_ms")
+#: SAC training when no trained policy is found: episode length and start voltages (V)
+SAC_EPISODE_STEPS = 500
+SAC_START_VOLTAGE_V = (0.0, 350.0)
+#: packages whose versions run.json records (+ dolfinx, petsc4py with an FEM plant)
+VERSIONED = ("numpy", "torch", "gymnasium", "stable_baselines3")
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """``surrogate:C1`` or ``fem:C1``."""
+
+    kind: str
+    setup: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}:{self.setup}"
+
+
+@dataclass
+class ControlConfig:
+    """Everything ``deapull control`` runs (see ``deapull control --help`` for each).
+
+    ``plant_model`` and ``sac_dir`` are patterns: ``{setup}`` becomes the setup (C1) and
+    ``{n}`` its number (1).
+    """
+
+    policies: list
+    plants: list
+    noises: list
+    out: Path
+    episodes: int = 10
+    seed: int = 0
+    dv_max_V: float = 5.0
+    max_steps: int = 4000
+    hold_steps: int = 100
+    target_m: float = -1e-3
+    tolerance_m: float = 1e-5
+    data: Path = Path("data")
+    plant_model: str = "out/models/fs{n}"
+    mpc_model: str = "out/models/fa"
+    mpc_cost: str = "scaled"
+    mpc_oracle: bool = False
+    sac_dir: str = "out/models/sac{n}"
+    sac_steps: int = 30000
+    scene: str = "coin_pull"
+    overrides: list = field(default_factory=list)
+    progress: bool = True
+
+    def folder(self, pattern: str, setup: str) -> Path:
+        return Path(pattern.format(setup=setup, n=re.sub(r"\D", "", setup)))
+
+
+# --- argument checks (before any work) -----------------------------------------------------
+
+def parse_list(text: str, what: str) -> list[str]:
+    items = [s.strip() for s in str(text).split(",") if s.strip()]
+    if not items:
+        raise InputError(f"{what} {text!r}: empty")
+    return list(dict.fromkeys(items))
+
+
+def parse_policies(text: str) -> list[str]:
+    out = parse_list(text, "--policy")
+    for p in out:
+        if p not in POLICIES:
+            raise InputError(f"--policy {p!r}: unknown policy; choose from {', '.join(POLICIES)}")
+    return out
+
+
+def parse_plants(text: str, scene: str = "coin_pull") -> list[PlantSpec]:
+    setups = scenes.setups_of(scene)
+    out = []
+    for item in parse_list(text, "--plant"):
+        kind, _, setup = item.partition(":")
+        if kind not in PLANT_KINDS or not setup:
+            raise InputError(f"--plant {item!r}: expected KIND:SETUP with KIND one of {', '.join(PLANT_KINDS)} "
+                             f"(e.g. surrogate:C1, fem:C1)")
+        if setup not in setups:
+            raise InputError(f"--plant {item!r}: unknown setup {setup!r}; scene {scene!r} has {', '.join(setups)}")
+        out.append(PlantSpec(kind, setup))
+    return out
+
+
+def parse_noises(text: str) -> list[float]:
+    out = []
+    for item in parse_list(text, "--noise"):
+        try:
+            value = float(item)
+        except ValueError:
+            raise InputError(f"--noise {item!r}: not a number (std of the observation noise, m)") from None
+        if not (math.isfinite(value) and value >= 0):
+            raise InputError(f"--noise {item!r}: must be a finite number >= 0 (std of the observation noise, m)")
+        out.append(value)
+    return out
+
+
+def check(config: ControlConfig) -> None:
+    """Refuse bad settings, naming the argument, before any model is loaded."""
+    for name, value, low in (("--episodes", config.episodes, 1), ("--max-steps", config.max_steps, 1),
+                             ("--hold", config.hold_steps, 0), ("--seed", config.seed, 0),
+                             ("--sac-steps", config.sac_steps, 1)):
+        if int(value) != value or value < low:
+            raise InputError(f"{name} {value!r}: must be an integer >= {low}")
+    if not (math.isfinite(config.dv_max_V) and config.dv_max_V > 0):
+        raise InputError(f"--dv-max {config.dv_max_V!r}: must be a finite number > 0 (V per step)")
+    if not (math.isfinite(config.target_m) and config.target_m < 0):
+        raise InputError(f"--target-mm {1e3 * config.target_m!r}: must be a finite number < 0 (the coin moves "
+                         "toward -x)")
+    if any(p.kind == "fem" for p in config.plants):
+        if importlib.util.find_spec("dolfinx") is None:
+            raise InputError("--plant fem:...: the FEM plant needs dolfinx (FEniCSx), which is not installed")
+        scenes.load(config.scene, setup=config.plants[0].setup, overrides=config.overrides)
+    for spec in config.plants:
+        needs_surrogate = spec.kind == "surrogate" or ("sac" in config.policies and not _sac_saved(config, spec))
+        if needs_surrogate:
+            _require_model(config.folder(config.plant_model, spec.setup), "--plant-model")
+            if not (config.data / f"{spec.setup}.nc").is_file():
+                raise InputError(f"--data {str(config.data)!r}: {spec.setup}.nc not found (the plant's coin φ "
+                                 f"is read from it)")
+    if "mpc" in config.policies:
+        from deapull.control.task import COSTS
+        if config.mpc_cost not in COSTS:
+            raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
+        _require_model(Path(config.mpc_model), "--mpc-model")
+
+
+def _require_model(folder: Path, option: str) -> None:
+    if not (folder / "model.json").is_file():
+        raise InputError(f"{option} {str(folder)!r}: no trained model there (model.json missing; "
+                         "make one with `deapull train`)")
+
+
+def _sac_saved(config: ControlConfig, spec: PlantSpec) -> bool:
+    from deapull.control.policies import SAC_FILE
+    return (config.folder(config.sac_dir, spec.setup) / SAC_FILE).is_file()
+
+
+# --- plants and policies -------------------------------------------------------------------
+
+def surrogate_plant(config: ControlConfig, setup: str):
+    """f_s of ``setup``: the surrogate in ``--plant-model`` simulating the setup's coin."""
+    from deapull.control.plants import SurrogatePlant
+    from deapull.surrogate import store
+    from deapull.surrogate.data import load_setup
+    model, _ = store.load(config.folder(config.plant_model, setup))
+    phi = model.phi_of(load_setup(config.data / f"{setup}.nc"))
+    return SurrogatePlant(model, phi, name=f"surrogate:{setup}")
+
+
+def build_plant(config: ControlConfig, spec: PlantSpec):
+    if spec.kind == "surrogate":
+        return surrogate_plant(config, spec.setup)
+    from deapull.control.plants import FEMPlant
+    scene = scenes.load(config.scene, setup=spec.setup, overrides=config.overrides)
+    return FEMPlant(scene, work_dir=config.out / "fem" / spec.setup, name=spec.name)
+
+
+def make_env(config: ControlConfig, plant, noise_std_m: float, **kwargs):
+    from deapull.control.env import CoinPushEnv
+    options = dict(target_m=config.target_m, tolerance_m=config.tolerance_m, dv_max_V=config.dv_max_V,
+                   max_steps=config.max_steps + config.hold_steps, noise_std_m=noise_std_m,
+                   terminate_on_success=False)
+    return CoinPushEnv(plant, **{**options, **kwargs})
+
+
+def sac_policy(config: ControlConfig, setup: str):
+    """The SAC policy of ``setup``: loaded from ``--sac-dir``, or trained there first on the
+    surrogate env of the setup (noise 0, ``--sac-steps`` steps)."""
+    from deapull.control.policies import SACPolicy, train_sac
+    folder = config.folder(config.sac_dir, setup)
+    if _sac_saved(config, PlantSpec("surrogate", setup)):
+        return SACPolicy.load(folder)
+    env = make_env(config, surrogate_plant(config, setup), 0.0, max_steps=SAC_EPISODE_STEPS,
+                   terminate_on_success=True, start_voltage_V=SAC_START_VOLTAGE_V)
+    print(f"training SAC on {env.plant.name} for {config.sac_steps} steps -> {folder}")
+    return train_sac(env, folder, config.sac_steps, seed=config.seed, progress=config.progress)
+
+
+def build_policy(config: ControlConfig, name: str, spec: PlantSpec, plant):
+    from deapull.control.policies import HeuristicPolicy, PDPolicy
+    if name == "pd":
+        return PDPolicy()
+    if name == "heur":
+        return HeuristicPolicy()
+    if name == "sac":
+        return sac_policy(config, spec.setup)
+    return mpc_policy(config, plant)
+
+
+def mpc_policy(config: ControlConfig, plant):
+    """The MPC (:mod:`deapull.control.task`) planning with f_a from ``--mpc-model``: φ inferred
+    online, or the plant's true φ with ``--mpc-oracle``."""
+    from deapull.control.task import MPCConfig, MPCPolicy
+    from deapull.surrogate import store
+    model, _ = store.load(config.mpc_model)
+    settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle)
+    return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
+
+
+# --- one episode ---------------------------------------------------------------------------
+
+@dataclass
+class Episode:
+    """One episode's row (:data:`COLUMNS`, true and inferred φ) and its per-step traces
+    (index 0: the state after reset)."""
+
+    row: dict
+    x_m: np.ndarray
+    V_V: np.ndarray
+    inferred: dict
+
+
+def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=None) -> Episode:
+    """Run ``policy`` on ``env`` (``terminate_on_success=False``, ``max_steps`` ≥
+    ``step_limit + hold_steps``) from ``reset(seed)``.
+
+    Stops ``hold_steps`` after the first success, or after ``step_limit`` steps without one;
+    a plant failure ends the episode with its message as ``status``.
+    """
+    from deapull.control.env import policy_view
+    from deapull.control.plants import PlantFailed
+    obs, info = env.reset(seed=seed)
+    policy.reset(env)
+    xs, Vs, inferred = [info["x_m"]], [env.V], {}
+    act_s = plant_s = 0.0
+    reached, status, inside = None, "ok", []
+    try:
+        while True:
+            start = time.perf_counter()
+            dV = float(policy.act(obs, policy_view(info)))
+            act_s += time.perf_counter() - start
+            start = time.perf_counter()
+            obs, _, _, _, info = env.step(env.action_of(dV))
+            plant_s += time.perf_counter() - start
+            xs.append(info["x_m"])
+            Vs.append(info["V_V"])
+            for k, v in policy.inferred().items():
+                inferred.setdefault(k, []).append(v)
+            if reached is None and info["success"]:
+                reached = info["step"]
+            if reached is not None:
+                inside.append(info["success"])
+            if bar is not None and info["step"] % 100 == 0:
+                bar.set_postfix_str(f"step {info['step']}", refresh=False)
+            if (reached is None and info["step"] >= step_limit) or len(inside) > hold_steps:
+                break
+    except PlantFailed as err:
+        status = f"plant failed: {err}"
+    n = len(xs) - 1
+    estimate = {k: v[-1] for k, v in inferred.items()}
+    truth = env.plant.truth.as_dict() if env.plant.truth is not None else {}
+    row = {"policy": policy.name, "plant": env.plant.name, "seed": seed, "noise_std_m": env.noise_std_m,
+           "dv_max_V": env.dv_max_V, "step_limit": step_limit, "hold_steps": hold_steps,
+           "iterations_to_target": reached, "reached": reached is not None,
+           "settled": reached is not None and len(inside) > hold_steps and all(inside),
+           "final_abs_error_m": abs(xs[-1] - env.target_m), "final_x_m": xs[-1], "final_V_V": Vs[-1],
+           "steps_run": n, "ms_per_iteration": 1e3 * act_s / max(n, 1), "plant_ms_per_step": 1e3 * plant_s / max(n, 1),
+           "status": status, "training_steps": getattr(policy, "training_steps", None), **_timings(policy),
+           **{f"true_{f}": truth.get(f) for f in PHI_FIELDS},
+           **{f"inferred_{f}": estimate.get(f) for f in PHI_FIELDS}}
+    return Episode(row, np.array(xs), np.array(Vs), {k: np.array(v) for k, v in inferred.items()})
+
+
+def _timings(policy) -> dict:
+    """Mean per-iteration times a policy reports itself (the MPC: plan and inference, ms)."""
+    return {f"{k}_per_iteration": float(np.mean(getattr(policy, k))) if getattr(policy, k, None) else None
+            for k in TIMED}
+
+
+# --- the experiment ------------------------------------------------------------------------
+
+def run(config: ControlConfig) -> list[Episode]:
+    """Every policy × plant × noise for ``episodes`` episodes; writes the outputs."""
+    check(config)
+    config.out.mkdir(parents=True, exist_ok=True)
+    packages = VERSIONED + (("dolfinx", "petsc4py") if any(p.kind == "fem" for p in config.plants) else ())
+    write_json(config.out / "run.json", {"config": {k: (str(v) if isinstance(v, Path) else v)
+                                                    for k, v in asdict(config).items()},
+                                         "git_commit": provenance.git_commit(), **provenance.package_versions(packages)},
+               indent=2)
+    total = len(config.plants) * len(config.policies) * len(config.noises) * config.episodes
+    episodes: list[Episode] = []
+    with tqdm(total=total, desc="control episodes", unit="episode", disable=not config.progress) as bar:
+        for spec in config.plants:
+            plant = build_plant(config, spec)
+            for name in config.policies:
+                policy = build_policy(config, name, spec, plant)
+                for noise in config.noises:
+                    env = make_env(config, plant, noise)
+                    for i in range(config.episodes):
+                        bar.set_description(f"{name} on {spec.name}, noise {noise:g} m")
+                        ep = run_episode(env, policy, config.seed + i, config.max_steps, config.hold_steps, bar)
+                        ep.row.update(setup=spec.setup, episode=i)
+                        episodes.append(ep)
+                        bar.update(1)
+    write_outputs(config, episodes)
+    return episodes
+
+
+def write_outputs(config: ControlConfig, episodes: list[Episode]) -> None:
+    rows = [e.row for e in episodes]
+    columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred") for f in PHI_FIELDS]
+    write_csv(config.out / "control.csv", rows, columns)
+    write_text(config.out / "table.md", summary_table(rows) + "\n")
+    traces = {}
+    for k, e in enumerate(episodes):
+        key = f"{e.row['policy']}|{e.row['plant']}|{e.row['noise_std_m']:g}|{e.row['episode']}"
+        traces[f"{key}|x_m"], traces[f"{key}|V_V"] = e.x_m, e.V_V
+        for f, v in e.inferred.items():
+            traces[f"{key}|inferred_{f}"] = v
+    atomic_write(config.out / "traces.npz", lambda p: np.savez_compressed(p, **traces), suffix=".npz")
+    plot_all(config, episodes)
+
+
+def summary_rows(rows: list[dict]) -> list[dict]:
+    """One row per (policy, plant, noise): counts, medians and the paper's numbers."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault((r["policy"], r["plant"], r["noise_std_m"]), []).append(r)
+    out = []
+    for (policy, plant, noise), group in groups.items():
+        its = [r["iterations_to_target"] for r in group if r["reached"]]
+        q = np.percentile(its, [25, 50, 75]) if its else [math.nan] * 3
+        paper_its, paper_ms = PAPER[policy]
+        out.append({"policy": policy, "plant": plant, "noise": noise, "reached": f"{len(its)}/{len(group)}",
+                    "settled": f"{sum(r['settled'] for r in group)}/{len(group)}",
+                    "its": "–" if not its else f"{q[1]:.0f} [{q[0]:.0f}–{q[2]:.0f}]",
+                    "error_mm": 1e3 * float(np.median([r["final_abs_error_m"] for r in group])),
+                    "ms": float(np.mean([r["ms_per_iteration"] for r in group])),
+                    "training": group[0]["training_steps"],
+                    "paper_its": paper_its, "paper_ms": paper_ms})
+    return out
+
+
+def summary_table(rows: list[dict]) -> str:
+    """Markdown: per policy, plant and noise, beside the paper's iterations and time."""
+    return markdown_table(summary_rows(rows), [
+        ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
+        ("reached", "reached", "s"), ("settled", "settled", "s"),
+        ("iterations to target, median [25–75 %]", "its", "s"), ("final abs(x − x^T) median (mm)", "error_mm", ".3g"),
+        ("ms / iteration", "ms", ".3g"), ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
+        ("paper: ms / iteration", "paper_ms", "g")])
+
+
+# --- figures ---------------------------------------------------------------------------------
+
+def _padded(series: list[np.ndarray]) -> np.ndarray:
+    """Episodes of different lengths as one array, each held at its last value."""
+    n = max(len(s) for s in series)
+    return np.stack([np.concatenate([s, np.full(n - len(s), s[-1])]) for s in series])
+
+
+def plot_all(config: ControlConfig, episodes: list[Episode]) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    groups: dict = {}
+    for e in episodes:
+        groups.setdefault((e.row["plant"], e.row["noise_std_m"]), {}).setdefault(e.row["policy"], []).append(e)
+    for (plant, noise), by_policy in groups.items():
+        stem = f"{plant.replace(':', '_')}_noise{noise:g}"
+        for what, get, ylabel in (("position", lambda e: 1e3 * e.x_m, "coin x [mm]"),
+                                  ("voltage", lambda e: e.V_V, "V [V]")):
+            fig, ax = plt.subplots(figsize=(7, 4))
+            for policy, eps in by_policy.items():
+                values = _padded([get(e) for e in eps])
+                t = np.arange(values.shape[1])
+                ax.plot(t, values.mean(0), label=f"{policy} (mean of {len(eps)})")
+                lo, hi = np.percentile(values, [25, 75], axis=0)
+                ax.fill_between(t, lo, hi, alpha=0.25)
+            if what == "position":
+                target = 1e3 * config.target_m
+                ax.axhline(target, color="k", lw=0.8, ls="--", label=f"x^T = {target:g} mm")
+                ax.axhspan(target - 1e3 * config.tolerance_m, target + 1e3 * config.tolerance_m, color="0.85")
+            ax.set_xlabel("iteration (Δt = 1 ms)")
+            ax.set_ylabel(ylabel)
+            ax.set_title(f"{plant}, observation noise {noise:g} m (line: mean, band: 25–75 %; "
+                         "finished episodes held)", fontsize=9)
+            ax.legend(fontsize=8)
+            _save(fig, config.out / f"{what}_{stem}.png")
+        inferring = {p: eps for p, eps in by_policy.items() if eps[0].inferred}
+        if inferring:
+            fields = sorted({f for eps in inferring.values() for f in eps[0].inferred})
+            fig, axes = plt.subplots(len(fields), 1, figsize=(7, 2.5 * len(fields)), squeeze=False)
+            truth = next(iter(inferring.values()))[0].row
+            for ax, f in zip(axes[:, 0], fields):
+                for policy, eps in inferring.items():
+                    values = _padded([e.inferred[f] for e in eps if f in e.inferred])
+                    ax.plot(values.mean(0), label=f"{policy} (mean)")
+                    lo, hi = np.percentile(values, [25, 75], axis=0)
+                    ax.fill_between(np.arange(values.shape[1]), lo, hi, alpha=0.25)
+                true = truth.get(f"true_{f}")
+                if true is not None and math.isfinite(true):
+                    ax.axhline(true, color="k", ls="--", lw=0.8, label="true")
+                ax.set_ylabel(f)
+                ax.legend(fontsize=8)
+            axes[-1, 0].set_xlabel("iteration")
+            _save(fig, config.out / f"inferred_{stem}.png")
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+    fig.tight_layout()
+    atomic_write(path, lambda p: fig.savefig(p, dpi=110, format="png"), suffix=".png")
+    plt.close(fig)
