@@ -6,7 +6,8 @@ Every argument is checked by :func:`check` before any model is loaded or any ste
 at rest at 0 V with seed ``seed + i`` (the same seeds for every policy), runs until the
 true |x − x^T| first drops below the tolerance (*iterations to target*) or the step limit,
 and then ``hold`` more steps: *settled* means the coin stayed inside the window for all of
-them. The policy's time per iteration is the wall time of its ``act``.
+them (the CSV also gives the fraction of those steps inside and the largest error). The
+policy's time per iteration is the wall time of its ``act``.
 
 Outputs in ``--out`` (every file written atomically):
 
@@ -44,7 +45,8 @@ PAPER = {"mpc": ("≤ 200", 1200.0), "sac": ("~10,000", 5.0), "pd": ("~1,500", 1
 #: φ fields reported (true and inferred)
 PHI_FIELDS = ("mass_kg", "mu_b", "mu_t", "v_threshold_V")
 COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max_V", "step_limit", "hold_steps",
-           "iterations_to_target", "reached", "settled", "final_abs_error_m", "final_x_m", "final_V_V", "steps_run",
+           "iterations_to_target", "reached", "settled", "hold_inside_fraction", "hold_max_abs_error_m",
+           "final_abs_error_m", "final_x_m", "final_V_V", "steps_run",
            "ms_per_iteration", "solve_ms_per_iteration", "inference_ms_per_iteration", "plant_ms_per_step",
            "training_steps", "status")
 #: per-iteration wall times (lists of ms) that a policy may keep: the MPC's plan and inference
@@ -305,6 +307,8 @@ def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=No
            "dv_max_V": env.dv_max_V, "step_limit": step_limit, "hold_steps": hold_steps,
            "iterations_to_target": reached, "reached": reached is not None,
            "settled": reached is not None and len(inside) > hold_steps and all(inside),
+           "hold_inside_fraction": float(np.mean(inside)) if inside else None,
+           "hold_max_abs_error_m": max(abs(x - env.target_m) for x in xs[reached:]) if reached else None,
            "final_abs_error_m": abs(xs[-1] - env.target_m), "final_x_m": xs[-1], "final_V_V": Vs[-1],
            "steps_run": n, "ms_per_iteration": 1e3 * act_s / max(n, 1), "plant_ms_per_step": 1e3 * plant_s / max(n, 1),
            "status": status, "training_steps": getattr(policy, "training_steps", None), **_timings(policy),
@@ -326,10 +330,9 @@ def run(config: ControlConfig) -> list[Episode]:
     check(config)
     config.out.mkdir(parents=True, exist_ok=True)
     packages = VERSIONED + (("dolfinx", "petsc4py") if any(p.kind == "fem" for p in config.plants) else ())
-    write_json(config.out / "run.json", {"config": {k: (str(v) if isinstance(v, Path) else v)
-                                                    for k, v in asdict(config).items()},
-                                         "git_commit": provenance.git_commit(), **provenance.package_versions(packages)},
-               indent=2)
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(config).items()}
+    write_json(config.out / "run.json", {"config": settings, "git_commit": provenance.git_commit(),
+                                         **provenance.package_versions(packages)}, indent=2)
     total = len(config.plants) * len(config.policies) * len(config.noises) * config.episodes
     episodes: list[Episode] = []
     with tqdm(total=total, desc="control episodes", unit="episode", disable=not config.progress) as bar:
@@ -389,8 +392,9 @@ def summary_table(rows: list[dict]) -> str:
     return markdown_table(summary_rows(rows), [
         ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
         ("reached", "reached", "s"), ("settled", "settled", "s"),
-        ("iterations to target, median [25–75 %]", "its", "s"), ("final abs(x − x^T) median (mm)", "error_mm", ".3g"),
-        ("ms / iteration", "ms", ".3g"), ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
+        ("iterations to target, median [25–75 %]", "its", "s"),
+        ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("ms / iteration", "ms", ".3g"),
+        ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
         ("paper: ms / iteration", "paper_ms", "g")])
 
 
@@ -406,17 +410,19 @@ def plot_all(config: ControlConfig, episodes: list[Episode]) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from deapull.control.plants import DT_S
     groups: dict = {}
     for e in episodes:
         groups.setdefault((e.row["plant"], e.row["noise_std_m"]), {}).setdefault(e.row["policy"], []).append(e)
     for (plant, noise), by_policy in groups.items():
         stem = f"{plant.replace(':', '_')}_noise{noise:g}"
-        for what, get, ylabel in (("position", lambda e: 1e3 * e.x_m, "coin x [mm]"),
-                                  ("voltage", lambda e: e.V_V, "V [V]")):
+        for what, get, ylabel, dt in (("position", lambda e: 1e3 * e.x_m, "coin x [mm]", None),
+                                      ("voltage", lambda e: e.V_V, "V [V]", DT_S)):
             fig, ax = plt.subplots(figsize=(7, 4))
             for policy, eps in by_policy.items():
                 values = _padded([get(e) for e in eps])
-                t = np.arange(values.shape[1])
+                t = np.arange(values.shape[1]) * (dt or 1)
                 ax.plot(t, values.mean(0), label=f"{policy} (mean of {len(eps)})")
                 lo, hi = np.percentile(values, [25, 75], axis=0)
                 ax.fill_between(t, lo, hi, alpha=0.25)
@@ -424,7 +430,7 @@ def plot_all(config: ControlConfig, episodes: list[Episode]) -> None:
                 target = 1e3 * config.target_m
                 ax.axhline(target, color="k", lw=0.8, ls="--", label=f"x^T = {target:g} mm")
                 ax.axhspan(target - 1e3 * config.tolerance_m, target + 1e3 * config.tolerance_m, color="0.85")
-            ax.set_xlabel("iteration (Δt = 1 ms)")
+            ax.set_xlabel("t [s]" if dt else "iteration (Δt = 1 ms)")
             ax.set_ylabel(ylabel)
             ax.set_title(f"{plant}, observation noise {noise:g} m (line: mean, band: 25–75 %; "
                          "finished episodes held)", fontsize=9)

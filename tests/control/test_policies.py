@@ -53,6 +53,8 @@ def test_heuristic_ramps_half_a_volt_per_step_and_reaches_the_ratchet_target_in_
     np.testing.assert_allclose(ep.V_V, 0.5 * np.arange(len(ep.V_V)))
     assert ep.row["iterations_to_target"] == 697 and ep.row["reached"]
     assert not ep.row["settled"]                           # it keeps ramping through the window
+    assert ep.row["hold_inside_fraction"] == pytest.approx(8 / 11)            # k = 697 … 704 of 697 … 707
+    assert ep.row["hold_max_abs_error_m"] == pytest.approx(5e-6 * (0.5 * 707 - 150.3) - 1e-3, rel=1e-5)
 
 
 def test_pd_reaches_and_settles_on_the_ratchet_plant():
@@ -62,6 +64,7 @@ def test_pd_reaches_and_settles_on_the_ratchet_plant():
     env = CoinPushEnv(RatchetPlant(), terminate_on_success=False, max_steps=4100)
     ep = run_episode(env, PDPolicy(), seed=0, step_limit=4000, hold_steps=100)
     assert ep.row["reached"] and ep.row["settled"] and ep.row["status"] == "ok"
+    assert ep.row["hold_inside_fraction"] == 1.0 and ep.row["hold_max_abs_error_m"] < 1e-5
     assert 1800 < ep.row["iterations_to_target"] < 2600
     assert ep.row["final_abs_error_m"] < 1e-5 and ep.x_m.min() > -1e-3 - 1e-5
     assert ep.row["ms_per_iteration"] > 0 and ep.row["true_mass_kg"] == 1.36e-3
