@@ -61,6 +61,7 @@ def trim(src: Path, dst: Path, keep_all: bool) -> None:
     import h5netcdf
     import numpy as np
     import xarray as xr
+    from deapull.io import atomic_write
 
     with xr.open_dataset(src, engine="h5netcdf") as ds:
         ds = ds.load()
@@ -71,20 +72,20 @@ def trim(src: Path, dst: Path, keep_all: bool) -> None:
         ds = ds[list(TRIMMED)]
     for var in ds.variables.values():
         var.encoding = {}
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    # xarray's own writer cannot choose the HDF5 format version; the newest one ('latest')
-    # halves the per-variable metadata of these small files
-    store = xr.backends.H5NetCDFStore(h5netcdf.File(tmp, "w", libver="latest"), mode="w")
-    try:
-        ds.dump_to_store(store, encoding={name: ENCODING for name in ds.variables})
-    finally:
-        store.close()
-    with xr.open_dataset(tmp, engine="h5netcdf") as back:
-        for name in ds.variables:
-            assert np.array_equal(back[name].values, ds[name].values, equal_nan=True), f"{dst}: {name} changed"
-        assert back.attrs.keys() == ds.attrs.keys(), f"{dst}: attributes changed"
-    os.replace(tmp, dst)
+    def write(tmp):
+        # xarray's own writer cannot choose the HDF5 format version; the newest one ('latest')
+        # halves the per-variable metadata of these small files
+        store = xr.backends.H5NetCDFStore(h5netcdf.File(tmp, "w", libver="latest"), mode="w")
+        try:
+            ds.dump_to_store(store, encoding={name: ENCODING for name in ds.variables})
+        finally:
+            store.close()
+        with xr.open_dataset(tmp, engine="h5netcdf") as back:
+            for name in ds.variables:
+                assert np.array_equal(back[name].values, ds[name].values, equal_nan=True), f"{dst}: {name} changed"
+            assert back.attrs.keys() == ds.attrs.keys(), f"{dst}: attributes changed"
+
+    atomic_write(dst, write)
 
 
 def main(argv=None) -> int:
