@@ -76,6 +76,11 @@ class InferenceConfig:
     motion_threshold_m : float
         A transition whose observed position changes by more than this counts as moving
         (for the hinge); raise it to a few noise stds under observation noise.
+    engine : {"auto", "native", "torch"}
+        Where the Levenberg–Marquardt step evaluates the residuals and their Jacobian:
+        ``native`` in C (:func:`deapull.control.native.coin_predict`, f-coulomb; the same
+        numbers to round-off), ``torch`` by autograd through the model, ``auto`` native
+        where available. Adam always uses torch.
     """
 
     fields: tuple | None = None
@@ -92,6 +97,7 @@ class InferenceConfig:
     damping: float = 1e-3
     max_log_step: float = 0.5
     wait_for_motion: bool = True
+    engine: str = "auto"
 
     def __post_init__(self):
         if not self.lr > 0 or self.batch_size < 1 or self.updates_per_step < 0 or not self.residual_scale_m > 0:
@@ -100,6 +106,8 @@ class InferenceConfig:
                              f"{self.residual_scale_m} > 0")
         if self.optimizer not in OPTIMIZERS:
             raise InputError(f"inference optimizer {self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
+        if self.engine not in ("auto", "native", "torch"):
+            raise InputError(f"inference engine {self.engine!r}: choose one of auto, native, torch")
         if self.capacity is not None and self.capacity < 1:
             raise InputError(f"inference capacity {self.capacity} must be at least 1 (or None)")
 
@@ -207,6 +215,12 @@ class OnlineInference:
         if missing:
             raise InputError(f"no initial value for {', '.join(missing)} (InferenceConfig.initial)")
         self.predictor = Predictor(self.model)
+        self.native = None
+        if config.engine != "torch" and model.kind == "f-coulomb":
+            from deapull.control import native
+            self.native = native if native.available(model) else None
+        if config.engine == "native" and self.native is None:
+            raise InputError(f"the native inference needs an f-coulomb model and a C compiler (model: {model.kind!r})")
         self.reset()
 
     def reset(self) -> None:
@@ -312,13 +326,16 @@ class OnlineInference:
         Gauss–Newton step, kept if the batch loss falls (damping ÷3), else damping ×4."""
         n, p = target.shape[0], len(self.fields)
         current = torch.stack([self.log_phi[f].detach() for f in self.fields])
-        rows = current.expand(n, p).clone().requires_grad_(True)
-        with torch.enable_grad():
-            r = self.residuals(columns, target, self._phi_rows(rows))
-            # each residual depends on its own row of ``rows``: the row-sums of blocks of n
-            J = torch.cat([torch.autograd.grad(block.sum(), rows, retain_graph=True)[0]
-                           for block in r.split(n)])
-        r = r.detach()
+        if self.native is not None:
+            r, J = self._native_residuals(columns, target, current, jacobian=True)
+        else:
+            rows = current.expand(n, p).clone().requires_grad_(True)
+            with torch.enable_grad():
+                r = self.residuals(columns, target, self._phi_rows(rows))
+                # each residual depends on its own row of ``rows``: the row-sums of blocks of n
+                J = torch.cat([torch.autograd.grad(block.sum(), rows, retain_graph=True)[0]
+                               for block in r.split(n)])
+            r = r.detach()
         loss = float((r ** 2).sum()) / n
         H, g = J.T @ J, J.T @ r
         scale = torch.diag(torch.diagonal(H)) + 1e-12 * torch.eye(p, dtype=H.dtype)
@@ -326,8 +343,12 @@ class OnlineInference:
             step = -torch.linalg.solve(H + self.damping * scale, g)
             step = step * torch.clamp(self.config.max_log_step / step.abs().max().clamp(min=1e-300), max=1.0)
             trial = self._clamp(current + step)
-            new = float(self.loss(columns, target, self._phi_rows(trial.expand(n, p)))) if torch.isfinite(trial).all() \
-                else math.inf
+            if not torch.isfinite(trial).all():
+                new = math.inf
+            elif self.native is not None:
+                new = float((self._native_residuals(columns, target, trial, jacobian=False)[0] ** 2).sum()) / n
+            else:
+                new = float(self.loss(columns, target, self._phi_rows(trial.expand(n, p))))
             if new < loss:
                 self.damping = max(self.damping / 3, 1e-9)
                 with torch.no_grad():
@@ -338,6 +359,24 @@ class OnlineInference:
             if self.damping >= 1e12:
                 break
         return loss
+
+    def _native_residuals(self, columns, target, log_values: torch.Tensor, jacobian: bool):
+        """:meth:`residuals` at one φ (inferred fields from ``log_values``) and their
+        Jacobian with respect to those log values, evaluated in C."""
+        cfg = self.config
+        values = {f: float(cfg.initial[f]) for f in self.model.phi_fields}
+        values.update({f: math.exp(float(v)) for f, v in zip(self.fields, log_values)})
+        pred, dpred, short, dshort = self.native.coin_predict(self.model, columns, values, jacobian)
+        columns_of = [("mass_kg", "mu_b", "mu_t").index(f) for f in self.fields]
+        r = (pred - target) / cfg.residual_scale_m
+        J = dpred[:, columns_of] / cfg.residual_scale_m if jacobian else None
+        if cfg.stick_hinge:
+            moving = ((target - columns["s"][..., 0]).abs() > cfg.motion_threshold_m).double()
+            weight = moving * columns["a"][..., 1] / cfg.residual_scale_m
+            r = torch.cat([r, weight * short])
+            if jacobian:
+                J = torch.cat([J, weight[:, None] * dshort[:, columns_of]])
+        return r, J
 
     def update(self, steps: int | None = None) -> dict | None:
         """``steps`` (default ``updates_per_step``) updates of log φ on a random batch each;

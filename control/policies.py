@@ -83,19 +83,37 @@ class PDPolicy(Policy):
     slowly to drag the coin (its slip rate falls under the friction's regularisation, see
     :mod:`deapull.control.env`): without noise this PD stalls 0.012 mm short of x^T, on
     f_s,1 and on the FEM of C1 alike (measured); a little noise dithers it in.
+
+    With ``filter="kf"`` (name ``pd+kf``) the error is taken on the estimate of a
+    constant-velocity Kalman filter (:class:`~deapull.control.filters.ConstantVelocityKalman`,
+    acceleration noise ``accel_std`` m/s²) instead of on x̃.
     """
 
     name = "pd"
 
-    def __init__(self, kp_V_per_mm: float = -0.5, kd_V_per_mm: float = 5.0):
+    def __init__(self, kp_V_per_mm: float = -0.5, kd_V_per_mm: float = 5.0, filter: str = "none",
+                 accel_std: float = 0.05):
+        from deapull.control.filters import FILTERS
+        if filter not in FILTERS:
+            raise InputError(f"PD filter {filter!r}: choose one of {', '.join(FILTERS)}")
         self.kp, self.kd = float(kp_V_per_mm), float(kd_V_per_mm)
+        self.filter, self.accel_std = filter, float(accel_std)
+        self.name = "pd" if filter == "none" else f"pd+{filter}"
         self.target_m, self.previous = float("nan"), None
 
     def reset(self, env) -> None:
+        from deapull.control.filters import ConstantVelocityKalman
         self.target_m, self.previous, self.env = env.target_m, None, env
+        self.kalman = None
+        if self.filter == "kf":
+            self.kalman = ConstantVelocityKalman(float(getattr(env, "noise_std_m", 0.0)), float(env.plant.dt),
+                                                 self.accel_std)
 
     def act(self, obs, info) -> float:
-        e = (self.target_m - self.env.position_of(obs)) / 1e-3
+        x = self.env.position_of(obs)
+        if self.kalman is not None:
+            x = self.kalman.reset(x) if self.previous is None else self.kalman.update(x)
+        e = (self.target_m - x) / 1e-3
         de = 0.0 if self.previous is None else e - self.previous
         self.previous = e
         return self.kp * e + self.kd * de

@@ -33,11 +33,14 @@ of the cheaper plan.
 
 **Velocity.** The env observes x (noisy) and V, not u. Without noise u_t = (x_t − x_{t−1})/Δt
 (exact for the backward-Euler step of f); with noise, the model's own prediction of u_t
-from the previous estimate and the applied voltages.
+from the previous estimate and the applied voltages. The position is the observation
+itself, or with ``filter="kf"`` (policy ``mpc+kf``) the estimate of a Kalman filter whose
+prediction is that same model step (:mod:`deapull.control.filters`).
 """
 from __future__ import annotations
 
 import copy
+import functools
 import time
 from dataclasses import dataclass, field, replace
 
@@ -52,6 +55,7 @@ from deapull.surrogate.phi import Phi
 #: units of the scaled state (x in m, u in m/s, V in V)
 X_UNIT_M, U_UNIT_M_S, V_UNIT_V = 1e-3, 1e-2, 100.0
 COSTS = ("scaled", "paper")
+ENGINES = ("auto", "native", "torch")
 #: the paper's action penalty on V (eq. 8, with w_s = 1 on x in m)
 PAPER_ACTION_WEIGHT = 1e-3
 
@@ -92,6 +96,19 @@ class CoinDynamics:
         return torch.tensor([[x_m / X_UNIT_M, u_m_s / U_UNIT_M_S, V_V / V_UNIT_V]], dtype=torch.float64)
 
 
+def make_dynamics(model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float, engine: str = "auto"):
+    """f_a as :class:`CoinDynamics` (``engine="torch"``) or its compiled twin
+    :class:`~deapull.control.native.NativeCoinDynamics` (``"native"``; ``"auto"``: where
+    available)."""
+    from deapull.control import native
+    if engine == "native" or (engine == "auto" and native.available(model)):
+        if not native.available(model):
+            raise InputError(f"the native MPC needs an f-coulomb f_a and a C compiler (f_a is {model.kind!r}; "
+                             f"compiler {'found' if native.library() is not None else 'missing'})")
+        return native.NativeCoinDynamics(model, phi, dt, dv_max_V, v_max_V)
+    return CoinDynamics(model, phi, dt, dv_max_V, v_max_V)
+
+
 def coin_cost(target_m: float, kind: str = "scaled", dv_weight: float = 1e-3, terminal_weight: float = 1.0
               ) -> mpc.QuadCost:
     """The MPC's cost on (ξ, ν) (module docstring); constant terms dropped."""
@@ -125,6 +142,17 @@ class MPCConfig:
         Infer φ online (Algorithm 2) and plan with the current estimate; otherwise plan with
         the φ given to the policy.
     inference : InferenceConfig
+    engine : {"auto", "native", "torch"}
+        Where f_a's steps, Jacobians and the iLQR run: ``native`` the compiled solver of
+        :mod:`deapull.control.native` (f-coulomb only; the same plans to round-off, ~1,000×
+        faster), ``torch`` :func:`mpc.solve` on :class:`CoinDynamics`, ``auto`` native
+        where it is available.
+    filter : {"none", "kf"}
+        ``kf``: plan from the estimate of a Kalman filter on the position whose prediction
+        is f_a itself (:class:`~deapull.control.filters.ModelKalman`, process noise
+        ``process_std_m`` per step at rest, plus ``process_fraction`` of each predicted
+        step); the policy is then named ``mpc+kf``.
+    process_std_m, process_fraction : float
     """
 
     horizon: int = 20
@@ -134,8 +162,17 @@ class MPCConfig:
     terminal_weight: float = 1.0
     infer: bool = True
     inference: InferenceConfig = field(default_factory=lambda: InferenceConfig(optimizer="lm"))
+    engine: str = "auto"
+    filter: str = "none"
+    process_std_m: float = 1e-6
+    process_fraction: float = 0.2
 
     def __post_init__(self):
+        from deapull.control.filters import FILTERS
+        if self.filter not in FILTERS:
+            raise InputError(f"MPC filter {self.filter!r}: choose one of {', '.join(FILTERS)}")
+        if self.engine not in ENGINES:
+            raise InputError(f"MPC engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
         if self.horizon < 1 or self.iterations < 0:
             raise InputError(f"MPC horizon {self.horizon} must be >= 1 and iterations {self.iterations} >= 0")
         if self.cost not in COSTS:
@@ -166,6 +203,7 @@ class MPCPolicy(Policy):
 
     def __init__(self, model, config: MPCConfig = MPCConfig(), phi: Phi | None = None):
         self.model, self.config = model, config
+        self.name = "mpc" if config.filter == "none" else f"mpc+{config.filter}"
         if not config.infer and phi is None:
             raise InputError("an MPC without inference needs the φ to plan with")
         self.fixed_phi = None if phi is None else model.check_phi(phi).to(dtype=torch.float64)
@@ -178,6 +216,10 @@ class MPCPolicy(Policy):
         self.dt, self.dv_max_V, self.v_max_V = float(env.plant.dt), float(env.dv_max_V), float(env.v_max_V)
         noise = float(getattr(env, "noise_std_m", 0.0))
         self.noisy = noise > 0
+        self.kalman = None
+        if cfg.filter == "kf":
+            from deapull.control.filters import ModelKalman
+            self.kalman = ModelKalman(noise, cfg.process_std_m, cfg.process_fraction)
         if cfg.infer:
             # a transition counts as moving (stick hinge) only beyond 3 noise stds
             settings = replace(cfg.inference, motion_threshold_m=max(cfg.inference.motion_threshold_m, 3 * noise))
@@ -185,7 +227,8 @@ class MPCPolicy(Policy):
                 self.inference = OnlineInference(self.model, settings, self.dt)
             self.inference.reset()
         phi = self.inference.phi if cfg.infer else self.fixed_phi
-        self.dynamics = CoinDynamics(self.model, phi, self.dt, self.dv_max_V, self.v_max_V)
+        self.dynamics = make_dynamics(self.model, phi, self.dt, self.dv_max_V, self.v_max_V, cfg.engine)
+        self.native = callable(getattr(self.dynamics, "solve", None))
         self.cost = coin_cost(self.target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight)
         self.plan = None
         self.previous = None          # (x, u, V) estimate of the previous step
@@ -194,16 +237,20 @@ class MPCPolicy(Policy):
     def inferred(self) -> dict:
         return self.inference.estimate() if self.inference is not None else {}
 
-    def _velocity(self, x: float, V: float) -> float:
+    def _estimate(self, x: float, V: float) -> tuple[float, float]:
+        """(x, u) to plan from, given the observed x and the applied V (module docstring)."""
         if self.previous is None:
-            return 0.0
+            return (x if self.kalman is None else self.kalman.reset(x)), 0.0
         x0, u0, V0 = self.previous
         if not self.noisy:
-            return (x - x0) / self.dt
+            return x, (x - x0) / self.dt
         with torch.no_grad():
-            return float(self.dynamics(self.dynamics.state(x0, u0, V0),
-                                       torch.tensor([[(V - V0) / self.dv_max_V]], dtype=torch.float64))[0, 1]
-                         * U_UNIT_M_S)
+            pred = self.dynamics(self.dynamics.state(x0, u0, V0),
+                                 torch.tensor([[(V - V0) / self.dv_max_V]], dtype=torch.float64))[0]
+        u = float(pred[1]) * U_UNIT_M_S
+        if self.kalman is not None:
+            x = self.kalman.update(float(pred[0]) * X_UNIT_M, x)
+        return x, u
 
     @torch.no_grad()
     def act(self, obs, info) -> float:
@@ -216,21 +263,22 @@ class MPCPolicy(Policy):
             self.dynamics.phi = self.inference.phi
             self.inference_ms.append(1e3 * (time.perf_counter() - start))
         start = time.perf_counter()
-        u = self._velocity(x, V)
+        x, u = self._estimate(x, V)
         self.previous = (x, u, V)
         xi0 = self.dynamics.state(x, u, V)
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
         out_of_reach = False
         if x - self.target_m > self.tolerance_m:
-            reach = mpc.rollout(self.dynamics, xi0, ramp)[0, :, 0] * X_UNIT_M
+            roll = self.dynamics.rollout if self.native else functools.partial(mpc.rollout, self.dynamics)
+            reach = roll(xi0, ramp)[0, :, 0] * X_UNIT_M
             out_of_reach = bool(reach.min() > self.target_m + self.tolerance_m)
         if out_of_reach:
             self.plan = ramp
         else:
             warm = mpc.shift(self.plan) if self.plan is not None else ramp
-            sol = mpc.solve(self.dynamics, self.cost, xi0.repeat(2, 1), torch.cat([warm, ramp]), -1.0, 1.0,
-                            iterations=cfg.iterations)
+            solver = self.dynamics.solve if self.native else functools.partial(mpc.solve, self.dynamics)
+            sol = solver(self.cost, xi0.repeat(2, 1), torch.cat([warm, ramp]), -1.0, 1.0, iterations=cfg.iterations)
             self.plan = sol.u[int(sol.cost.argmin())].unsqueeze(0)
         self.solve_ms.append(1e3 * (time.perf_counter() - start))
         return float(self.plan[0, 0, 0]) * self.dv_max_V

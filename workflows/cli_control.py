@@ -36,7 +36,8 @@ def register(sub) -> None:
     p = sub.add_parser("control", help="closed-loop control episodes: MPC, SAC, PD, heuristic on surrogate or "
                                        "FEM plants (CSV, table beside the paper, Fig. 6 plots)")
     p.add_argument("--policy", required=True,
-                   help="policy or comma-separated policies: mpc, sac, pd (K_p -0.5, K_d 5 V/mm), heur (+0.5 V/step)")
+                   help="policy or comma-separated policies: mpc, sac, pd (K_p -0.5, K_d 5 V/mm), heur (+0.5 V/step); "
+                        "mpc+kf, pd+kf: the same acting on a Kalman estimate of the position")
     p.add_argument("--plant", required=True,
                    help="plant(s) KIND:SETUP, comma-separated: surrogate:C1 (the paper's f_s,1), fem:C1 (the FEM "
                         "stepped online)")

@@ -38,7 +38,7 @@ from deapull import scene as scenes
 from deapull.errors import InputError
 from deapull.io import atomic_write, markdown_table, write_csv, write_json, write_text
 
-POLICIES = ("mpc", "sac", "pd", "heur")
+POLICIES = ("mpc", "sac", "pd", "heur", "mpc+kf", "pd+kf")
 PLANT_KINDS = ("surrogate", "fem")
 #: the paper's results (§VI-B): iterations to target and time per iteration
 PAPER = {"mpc": ("≤ 200", 1200.0), "sac": ("~10,000", 5.0), "pd": ("~1,500", 1.0), "heur": ("~500", None)}
@@ -171,7 +171,7 @@ def check(config: ControlConfig) -> None:
             if not (config.data / f"{spec.setup}.nc").is_file():
                 raise InputError(f"--data {str(config.data)!r}: {spec.setup}.nc not found (the plant's coin φ "
                                  f"is read from it)")
-    if "mpc" in config.policies:
+    if any(p.startswith("mpc") for p in config.policies):
         from deapull.control.task import COSTS
         if config.mpc_cost not in COSTS:
             raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
@@ -232,22 +232,23 @@ def sac_policy(config: ControlConfig, setup: str):
 
 def build_policy(config: ControlConfig, name: str, spec: PlantSpec, plant):
     from deapull.control.policies import HeuristicPolicy, PDPolicy
-    if name == "pd":
-        return PDPolicy()
+    if name in ("pd", "pd+kf"):
+        return PDPolicy(filter="kf" if name == "pd+kf" else "none")
     if name == "heur":
         return HeuristicPolicy()
     if name == "sac":
         return sac_policy(config, spec.setup)
-    return mpc_policy(config, plant)
+    return mpc_policy(config, plant, filter="kf" if name == "mpc+kf" else "none")
 
 
-def mpc_policy(config: ControlConfig, plant):
+def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
     """The MPC (:mod:`deapull.control.task`) planning with f_a from ``--mpc-model``: φ inferred
-    online, or the plant's true φ with ``--mpc-oracle``."""
+    online, or the plant's true φ with ``--mpc-oracle``; ``filter="kf"``: from a Kalman
+    estimate of the position (``mpc+kf``)."""
     from deapull.control.task import MPCConfig, MPCPolicy
     from deapull.surrogate import store
     model, _ = store.load(config.mpc_model)
-    settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle)
+    settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle, filter=filter)
     return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
 
 
@@ -376,7 +377,7 @@ def summary_rows(rows: list[dict]) -> list[dict]:
     for (policy, plant, noise), group in groups.items():
         its = [r["iterations_to_target"] for r in group if r["reached"]]
         q = np.percentile(its, [25, 50, 75]) if its else [math.nan] * 3
-        paper_its, paper_ms = PAPER[policy]
+        paper_its, paper_ms = PAPER[policy.split("+")[0]]
         out.append({"policy": policy, "plant": plant, "noise": noise, "reached": f"{len(its)}/{len(group)}",
                     "settled": f"{sum(r['settled'] for r in group)}/{len(group)}",
                     "its": "–" if not its else f"{q[1]:.0f} [{q[0]:.0f}–{q[2]:.0f}]",

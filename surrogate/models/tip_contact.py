@@ -93,6 +93,21 @@ def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps: float, iterations: int =
     return u_next, force
 
 
+def material_from_pieces(pieces: dict, V: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """X(V) and Fy(V) of :meth:`TipContactModel.material_pieces` (float64; V inside their span)."""
+    knots = torch.as_tensor(pieces["knots"], dtype=torch.float64)
+    slope = torch.as_tensor(pieces["slope"], dtype=torch.float64)
+    intercept = torch.as_tensor(pieces["intercept"], dtype=torch.float64)
+
+    def raw(t):
+        k = torch.clamp(torch.searchsorted(knots, t, right=True) - 1, 0, len(slope) - 1)
+        return slope[k] * t.unsqueeze(-1) + intercept[k]
+    t = (V.double() - pieces["mean"]) / pieces["scale"]
+    rest = raw(torch.tensor([(0.0 - pieces["mean"]) / pieces["scale"]], dtype=torch.float64))[0, 0]
+    out = raw(t)
+    return pieces["stroke_scale"] * (out[..., 0] - rest), pieces["fy_mean"] + pieces["fy_scale"] * out[..., 1]
+
+
 @register
 class TipContactModel(Surrogate):
     """f = d∘m grounded in the FEM's contact mechanics (kind ``f-coulomb``).
@@ -161,6 +176,53 @@ class TipContactModel(Surrogate):
         out = self.material((scaled - self.in_mean[2]) / self.in_std[2])
         stroke = self.s_std[0] * (out[..., 0, 0] - out[..., 1, 0])
         return stroke, self.z_mean[1] + self.z_std[1] * out[..., 0, 1]
+
+    def material_pieces(self, v_lo: float, v_hi: float) -> dict:
+        """m as the exact piecewise-affine function it is on [v_lo, v_hi] V (a fast path).
+
+        m is a ReLU network of one input t = (V − mean)/scale, so each of its outputs is
+        continuous and affine between the points where a hidden unit changes sign. Layer by
+        layer, the units' pre-activations are affine on every interval between the kinks
+        found so far (their slopes come from the activation pattern at the interval's
+        midpoint), so their zeros inside an interval are the next kinks. On each final
+        piece the output is o(t) = slope t + intercept, from o and its slope at the piece's
+        midpoint, in float64: the same function as :meth:`material_response` up to round-off.
+
+        Returns
+        -------
+        dict
+            ``knots`` (K+1,) in t, increasing, spanning [v_lo, v_hi]; ``slope``,
+            ``intercept`` (K, 2) of the two raw outputs on each piece; ``mean``, ``scale``
+            of t; ``stroke_scale`` (X = stroke_scale (o_0(t) − o_0(t(0 V)))), ``fy_mean``,
+            ``fy_scale`` (Fy = fy_mean + fy_scale o_1(t)). :func:`material_from_pieces`
+            evaluates them.
+        """
+        linears = [layer for layer in self.material if isinstance(layer, torch.nn.Linear)]
+        Ws = [layer.weight.detach().double().cpu().numpy() for layer in linears]
+        bs = [layer.bias.detach().double().cpu().numpy() for layer in linears]
+        mean, scale = float(self.in_mean[2]), float(self.in_std[2])
+        knots = np.array([(min(v_lo, 0.0) - mean) / scale, (v_hi - mean) / scale])
+
+        def affine(t, depth):
+            """Pre-activation of layer ``depth`` and its slope in t at the points t (K,)."""
+            h, dh = t[:, None], np.ones((len(t), 1))
+            for j in range(depth):
+                z, dz = h @ Ws[j].T + bs[j], dh @ Ws[j].T
+                h, dh = np.where(z > 0, z, 0.0), np.where(z > 0, dz, 0.0)
+            return h @ Ws[depth].T + bs[depth], dh @ Ws[depth].T
+
+        for depth in range(1, len(Ws)):
+            mid = 0.5 * (knots[:-1] + knots[1:])
+            z, dz = affine(mid, depth - 1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                zero = mid[:, None] - z / dz
+            inside = (dz != 0) & (zero > knots[:-1, None]) & (zero < knots[1:, None])
+            knots = np.unique(np.concatenate([knots, zero[inside]]))
+        mid = 0.5 * (knots[:-1] + knots[1:])
+        out, slope = affine(mid, len(Ws) - 1)
+        return {"knots": knots, "slope": slope, "intercept": out - slope * mid[:, None], "mean": mean,
+                "scale": scale, "stroke_scale": float(self.s_std[0]), "fy_mean": float(self.z_mean[1]),
+                "fy_scale": float(self.z_std[1])}
 
     def init_memory(self, s0, a0):
         """(V, X) before the first step: the DEA at rest, 0 V."""

@@ -73,6 +73,18 @@ def test_mpc_runs_through_the_harness_and_reports_its_inference(base, tmp_path, 
     assert (out / "inferred_surrogate_C1_noise0.png").is_file()
 
 
+def test_filtered_policies_run_under_their_own_names(base, tmp_path, capsys, fs1_dir):
+    """``pd+kf`` and ``mpc+kf`` (deapull.control.filters) go through the harness as policies
+    of their own, beside the paper's numbers of PD and MPC."""
+    out = tmp_path / "out"
+    argv = [*base, "--policy", "pd+kf,mpc+kf", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3",
+            "--hold", "0", "--target-mm", "-0.4", "--noise", "1e-5"]
+    assert main(argv) == 0
+    assert "~1,500" in capsys.readouterr().out
+    rows = _rows(out / "control.csv")
+    assert [r["policy"] for r in rows] == ["pd+kf", "mpc+kf"] and all(r["steps_run"] == "3" for r in rows)
+
+
 def test_control_run_writes_csv_table_and_figures(base, tmp_path, capsys):
     out = tmp_path / "out"
     argv = [*base, "--policy", "pd,heur", "--episodes", "2", "--noise", "0,1e-5", "--target-mm", "-0.4",

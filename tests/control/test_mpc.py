@@ -293,15 +293,15 @@ def episode(policy, env, seed=0):
             return info, actions
 
 
-@pytest.mark.parametrize("infer", [False, True])
-def test_mpc_drives_a_surrogate_plant_to_the_target(coulomb, infer):
+@pytest.mark.parametrize("infer,engine", [(False, "torch"), (False, "auto"), (True, "auto")])
+def test_mpc_drives_a_surrogate_plant_to_the_target(coulomb, infer, engine):
     from deapull.control.env import CoinPushEnv
     from deapull.control.plants import SurrogatePlant
     from deapull.control.task import MPCConfig, MPCPolicy
     from deapull.surrogate.phi import Phi
     truth = Phi(*TRUTH_PHI)
     env = CoinPushEnv(SurrogatePlant(coulomb, truth), target_m=-2e-4, max_steps=120)
-    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=infer), phi=truth)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=infer, engine=engine), phi=truth)
     info, actions = episode(policy, env)
     assert info["success"], (info["error_m"], info["V_V"])
     # the approach is the ramp at the limit, then the MPC eases off

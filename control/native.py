@@ -1,0 +1,232 @@
+"""The coin task's MPC compiled: f_a's step, its Jacobians and the box-iLQR in C.
+
+An MPC step is 20 iterations of a 20-step plan: ~400 sequential steps of f_a plus 400
+backward-pass steps. In eager torch each of them costs tens of microseconds of
+per-operation overhead (the tip-contact step alone is a Newton loop of a dozen operations
+per iteration), which is why the torch solver (:mod:`deapull.control.mpc` on
+:class:`~deapull.control.task.CoinDynamics`) needs ~0.8 s per MPC step. ``native_mpc.c``
+runs the same arithmetic in C:
+
+* the material network m of f-coulomb as the exact piecewise-affine function it is
+  (:meth:`TipContactModel.material_pieces`: a binary search and one multiply-add per
+  output instead of a 3 × 128 network);
+* the coin's step by the same bracketed Newton iteration as
+  :func:`~deapull.surrogate.models.tip_contact.tip_coin_step` (stopping per row), and its
+  Jacobians from the implicit-function theorem at the root (what autograd through the
+  torch model's final Newton correction gives);
+* :func:`deapull.control.mpc.solve` for n = 3, m = 1, operation for operation.
+
+:class:`NativeCoinDynamics` is a drop-in :class:`~deapull.control.task.CoinDynamics`
+(``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
+returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
+Jacobians and plans to the torch path's (``tests/control/test_native.py``). Compiled on
+first use like the surrogate's native rollouts (same cache folder and flags); without a
+compiler, or with ``DEAPULL_NATIVE=0``, :func:`available` is False and the torch path is
+used.
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import logging
+import os
+import platform
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from deapull.control import mpc
+from deapull.control.task import U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics
+from deapull.io import atomic_write
+from deapull.surrogate import native as surrogate_native
+
+log = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).with_name("native_mpc.c")
+FLAGS = surrogate_native.FLAGS
+_D = ctypes.POINTER(ctypes.c_double)
+
+
+def _cache_dir() -> Path:
+    if os.environ.get("DEAPULL_CACHE_DIR"):
+        return Path(os.environ["DEAPULL_CACHE_DIR"])
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "deapull"
+
+
+@functools.lru_cache(maxsize=1)
+def library() -> ctypes.CDLL | None:
+    """The compiled solver (compiled now if needed), or None where it cannot be had."""
+    if os.environ.get("DEAPULL_NATIVE", "1") == "0":
+        return None
+    compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if compiler is None or not SOURCE.is_file():
+        log.warning("no C compiler (or %s missing): the MPC uses the slower torch path", SOURCE.name)
+        return None
+    key = hashlib.sha256("\0".join([SOURCE.read_text(), compiler, *FLAGS, platform.machine(),
+                                    platform.node()]).encode()).hexdigest()[:16]
+    target = _cache_dir() / f"native_mpc_{key}.so"
+    if not target.is_file():
+        try:
+            atomic_write(target, lambda tmp: subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", tmp, "-lm"],
+                                                            check=True, capture_output=True, text=True, timeout=120))
+        except (OSError, subprocess.CalledProcessError) as err:
+            log.warning("compiling %s failed (%s): the MPC uses the slower torch path", SOURCE.name,
+                        getattr(err, "stderr", "") or err)
+            return None
+    lib = ctypes.CDLL(str(target))
+    common = [_D, ctypes.c_int, _D, _D, _D]
+    lib.deapull_coin_step.argtypes = common + [ctypes.c_int, _D, _D, _D, _D, _D]
+    lib.deapull_coin_rollout.argtypes = common + [ctypes.c_int, ctypes.c_int, _D, _D, _D]
+    lib.deapull_coin_ilqr.argtypes = common + [_D, _D, _D, _D, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                               ctypes.c_int, ctypes.c_int, ctypes.c_int, _D, ctypes.c_double,
+                                               _D, _D, _D, _D, _D, _D, _D, _D]
+    lib.deapull_coin_predict.argtypes = [ctypes.c_int] + [_D] * 11
+    for f in (lib.deapull_coin_step, lib.deapull_coin_rollout, lib.deapull_coin_ilqr, lib.deapull_coin_predict):
+        f.restype = ctypes.c_int
+    return lib
+
+
+def available(model=None) -> bool:
+    """True when the library compiles and ``model`` (if given) is one it runs (f-coulomb)."""
+    return (model is None or model.kind == "f-coulomb") and library() is not None
+
+
+def _p(a: np.ndarray):
+    return a.ctypes.data_as(_D)
+
+
+def _np(t) -> np.ndarray:
+    return np.ascontiguousarray(torch.as_tensor(t).detach().cpu().numpy(), dtype=np.float64)
+
+
+class NativeCoinDynamics(CoinDynamics):
+    """:class:`CoinDynamics` of an f-coulomb f_a evaluated in C (module docstring).
+
+    Same constructor; :attr:`phi` may be replaced between calls. Rows of every call are
+    independent. V must stay inside [0, ``v_max_V``] (the plan's clipping keeps it there).
+    """
+
+    def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
+        super().__init__(model, phi, dt, dv_max_V, v_max_V)
+        if self.model.kind != "f-coulomb" or library() is None:
+            raise RuntimeError("the native MPC runs f-coulomb models where a C compiler is available")
+        pieces = self.model.material_pieces(0.0, self.v_max_V)
+        self._knots = np.ascontiguousarray(pieces["knots"], dtype=np.float64)
+        self._slope = np.ascontiguousarray(pieces["slope"], dtype=np.float64)
+        self._intercept = np.ascontiguousarray(pieces["intercept"], dtype=np.float64)
+        t0 = (0.0 - pieces["mean"]) / pieces["scale"]
+        k0 = int(np.clip(np.searchsorted(self._knots, t0, side="right") - 1, 0, len(self._slope) - 1))
+        rest = self._slope[k0, 0] * t0 + self._intercept[k0, 0]
+        self._static = [pieces["mean"], pieces["scale"], pieces["stroke_scale"], pieces["fy_mean"],
+                        pieces["fy_scale"], rest]
+        self._lib = library()
+
+    def _params(self) -> np.ndarray:
+        m = self.model
+        phi = self.phi
+        mean, scale, sx, fym, fys, rest = self._static
+        return np.array([mean, scale, sx, fym, fys, phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"),
+                         m.gravity_m_s2, m.slip_rate_reg_m_s, self.dt, self.dv_max_V, self.v_max_V, m.iterations,
+                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, rest], dtype=np.float64)
+
+    def _head(self):
+        return (_p(self._params_now), len(self._slope), _p(self._knots), _p(self._slope), _p(self._intercept))
+
+    def _call(self, xi, nu, jac: bool):
+        self._params_now = self._params()
+        x = _np(xi).reshape(-1, 3)
+        n = _np(nu).reshape(-1)
+        N = len(x)
+        out = np.empty((N, 3))
+        A = np.empty((N, 3, 3)) if jac else None
+        Bv = np.empty((N, 3)) if jac else None
+        self._lib.deapull_coin_step(*self._head(), N, _p(x), _p(n), _p(out), _p(A) if jac else None,
+                                    _p(Bv) if jac else None)
+        return out, A, Bv
+
+    def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
+        out, _, _ = self._call(xi, nu, False)
+        return torch.from_numpy(out)
+
+    def jacobian(self, xi: torch.Tensor, nu: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A = ∂ξ'/∂ξ (N, 3, 3) and B = ∂ξ'/∂ν (N, 3, 1) (what :func:`mpc.linearize` uses)."""
+        _, A, Bv = self._call(xi, nu, True)
+        return torch.from_numpy(A), torch.from_numpy(Bv).unsqueeze(-1)
+
+    def rollout(self, xi0: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
+        """:func:`mpc.rollout` in one C call: ξ (B, T+1, 3) from ξ0 (B, 3) under ν (B, T, 1)."""
+        self._params_now = self._params()
+        x0 = _np(xi0).reshape(-1, 3)
+        u = _np(nu).reshape(len(x0), -1)
+        B, T = u.shape
+        xs = np.empty((B, T + 1, 3))
+        self._lib.deapull_coin_rollout(*self._head(), B, T, _p(x0), _p(u), _p(xs))
+        return torch.from_numpy(xs)
+
+    def solve(self, cost: mpc.QuadCost, x0: torch.Tensor, u_init: torch.Tensor, lower=None, upper=None, *,
+              iterations: int = 20, alphas=mpc.ALPHAS, tol: float = 0.0, mu0: float = 0.0) -> mpc.Solution:
+        """:func:`mpc.solve` (same arguments, m = 1, a constant :class:`~mpc.QuadCost`) in C."""
+        if not isinstance(cost, mpc.QuadCost) or cost.C.shape != (4, 4) or cost.c.shape != (4,):
+            raise TypeError("the native solver takes a time-invariant QuadCost with C (4, 4) and c (4,)")
+        self._params_now = self._params()
+        x0 = _np(x0).reshape(-1, 3)
+        B = len(x0)
+        u = _np(u_init).reshape(B, -1).copy()
+        T = u.shape[1]
+        like = torch.zeros(B, T, 1, dtype=torch.float64)
+        lo = _np(mpc._bounds(lower, like, -1.0)).reshape(B, T)
+        hi = _np(mpc._bounds(upper, like, 1.0)).reshape(B, T)
+        C, c = _np(cost.C), _np(cost.c)
+        Cf = _np(cost.C_final) if cost.C_final is not None else np.zeros((3, 3))
+        cf = _np(cost.c_final) if cost.c_final is not None else np.zeros(3)
+        steps = np.ascontiguousarray(alphas, dtype=np.float64)
+        xs = np.empty((B, T + 1, 3))
+        J = np.empty(B)
+        mu = np.full(B, float(mu0))
+        history = np.zeros((B, iterations + 1))
+        done = self._lib.deapull_coin_ilqr(
+            *self._head(), _p(C), _p(c), _p(Cf), _p(cf), int(cost.C_final is not None), int(cost.c_final is not None),
+            B, T, iterations, len(steps), _p(steps), float(tol), _p(x0), _p(u), _p(lo), _p(hi), _p(xs), _p(J),
+            _p(mu), _p(history))
+        if done < 0:
+            raise MemoryError("the native MPC could not allocate its scratch memory")
+        return mpc.Solution(x=torch.from_numpy(xs), u=torch.from_numpy(u).unsqueeze(-1), cost=torch.from_numpy(J),
+                            history=torch.from_numpy(history[:, :done + 1]), mu=torch.from_numpy(mu),
+                            iterations=done)
+
+
+def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
+    """The online inference's prediction for an f-coulomb ``model`` in C
+    (:class:`~deapull.control.inference.Predictor`'s ``predict`` and ``stick_shortfall``).
+
+    Parameters
+    ----------
+    columns : dict
+        The cached rows (``s``, ``a``, ``stroke_prev``, ``stroke``, ``fy``).
+    phi : dict
+        ``mass_kg``, ``mu_b``, ``mu_t`` (floats: one coin for every row).
+    derivatives : bool
+        Also the derivatives with respect to log m_c, log μ_b, log μ_t.
+
+    Returns
+    -------
+    (x̂ (n,), ∂x̂/∂log φ (n, 3) or None, shortfall (n,), ∂shortfall/∂log φ (n, 3) or None)
+    """
+    lib = library()
+    s, a = columns["s"], columns["a"]
+    rows = [_np(s[:, 0]), _np(s[:, 1]), _np(a[:, 1]), _np(columns["stroke_prev"]), _np(columns["stroke"]),
+            _np(columns["fy"])]
+    n = len(rows[0])
+    phys = np.array([float(phi["mass_kg"]), float(phi["mu_b"]), float(phi["mu_t"]), model.gravity_m_s2,
+                     model.slip_rate_reg_m_s, model.iterations], dtype=np.float64)
+    pred, short = np.empty(n), np.empty(n)
+    dpred = np.empty((n, 3)) if derivatives else None
+    dshort = np.empty((n, 3)) if derivatives else None
+    lib.deapull_coin_predict(n, *(_p(r) for r in rows), _p(phys), _p(pred), _p(dpred) if derivatives else None,
+                             _p(short), _p(dshort) if derivatives else None)
+    as_t = (lambda v: None if v is None else torch.from_numpy(v))
+    return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)
