@@ -10,7 +10,8 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-surrogate fidelity stability control experiments clean
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+	report report-fields clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -40,8 +41,11 @@ sweep: setup ## the 8 setups under mpirun -n $(NP) into $(DATA)/ (resumes if int
 excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C3,C5,C7 into $(DATA)/excitation (resumes)
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull --setups C1,C3,C5,C7 --protocols excitation --out $(DATA)/excitation
 
-bench-fem: setup ## FEM wall time, travel error vs a finer mesh, 8-setup sweep; beside ABAQUS 130 s
+bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the converged reference, Newton its, 8-setup sweep; beside ABAQUS 130 s
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
+
+fem-study: setup ## FEM accuracy studies (reference ladder, dt, contact quadrature, eps_v, candidates); resumes; hours
+	$(PY) bench/fem_study.py --study all --out $(OUT)/fem_study
 
 fidelity: setup ## error against run time ladder on coin_pull C3 (issue 4)
 	$(MPIRUN) $(DEAPULL) fidelity --scene coin_pull --setup C3 --out $(OUT)/fidelity
@@ -71,6 +75,25 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 
 experiments: setup ## the paper's six sliding sets for every model (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments
+
+experiments-protocols: setup ## train on ramps + excitation, test held-out protocols and coins (needs $(DATA), $(DATA)/excitation; resumes)
+	$(DEAPULL) experiments-protocols --data $(DATA) --excitation $(DATA)/excitation --out $(OUT)/protocols --ramp-results $(OUT)/experiments
+
+report-fields: setup ## displacement fields of coin_pull C3 (XDMF) for the report's pictures, into $(OUT)/report_fields
+	$(DEAPULL) solve --scene coin_pull --setup C3 --out $(OUT)/report_fields --fields-every 10
+
+REPORT_FAILED := $(OUT)/report/.failed-steps
+report: setup ## the reproduction report $(OUT)/report/index.html + report.md; FULL=1 first runs the missing steps
+	@mkdir -p $(OUT)/report; : > $(REPORT_FAILED)
+ifneq ($(FULL),)
+	@for step in $$($(DEAPULL) report --outputs $(OUT) --data $(DATA) --missing-steps); do \
+		echo "[report] outputs missing: make $$step"; \
+		$(MAKE) --no-print-directory $$step || echo $$step >> $(REPORT_FAILED); \
+	done
+endif
+	$(DEAPULL) report --out $(OUT)/report --outputs $(OUT) --data $(DATA)
+	@if [ -s $(REPORT_FAILED) ]; then echo "[report] these steps failed: $$(cat $(REPORT_FAILED) | tr '\n' ' ')"; \
+		rm -f $(REPORT_FAILED); exit 1; fi; rm -f $(REPORT_FAILED)
 
 clean: ## remove generated output (keeps .venv and data/)
 	rm -rf $(OUT) .pytest_cache

@@ -40,6 +40,8 @@ VARIABLES = {
     "coupling_iterations": ("1", "DEA-coin coupling iterations of the step"),
     "cutbacks": ("1", "step cut-backs before the step was accepted"),
     "penetration_m": ("m", "largest penetration of the DEA's underside nodes into the obstacle"),
+    "penetration_qp_m": ("m", "largest penetration into the obstacle at the contact integral's quadrature "
+                              "points (where the penalty acts)"),
     "stick": ("1", "1 when the coin sticks on the ground"),
     "force_balance_residual_N": ("N", "coin momentum balance with the DEA force taken from the clamp reaction "
                                       "(independent of the contact integral the coupling used)"),
@@ -62,6 +64,10 @@ ATTRIBUTES = {
     "coin_mu_t": "Coulomb friction DEA-coin", "coin_mu_b": "Coulomb friction coin-ground",
     "coin_density_kg_m3": "coin density",
     "contact_slip_rate_reg_m_s": "slip-rate regularisation eps_v of the DEA-coin friction",
+    "contact_slip_rate_reg_bias": "what eps_v does to the coin travel, as measured (docs/fem_accuracy.md)",
+    "contact_quadrature": "points of the contact integrals: rule and degree",
+    "mesh_symmetry": "'half_z' (the half z >= 0, forces doubled) or 'none'",
+    "mesh_divisions": "element divisions of the full width (x, z, active, passive)",
     "gravity_m_s2": "gravitational acceleration", "voltage_max_V": "largest voltage of the protocol",
     "wall_time_total_s": "wall time of the whole run", "coin_travel_m": "the coin's largest |x| (it starts at x = 0)",
     "coin_motion": "which way the coin went: 'toward -x (away from the clamp)' (coin_pull), "

@@ -118,6 +118,12 @@ class Contact:
     penalty_scale: float = _pos(10.0, "normal penalty = penalty_scale * E / h_cell (N/m^3)")
     slip_rate_regularisation_m_s: float = _pos(1e-4, "slip rate at which regularised Coulomb friction "
                                                       "reaches ~70 % of mu*p")
+    quadrature_degree: int = _num(4, lo=0, integer=True, doc="quadrature degree of the contact and friction "
+                                  "integrals on the DEA's underside (own measure, independent of "
+                                  "solver.quadrature_degree)")
+    quadrature_rule: str = _choice("gauss", ("gauss", "gauss_lobatto"),
+                                   "points of the contact integrals: gauss (interior points) or gauss_lobatto "
+                                   "(includes the facet's edges and corners, where the patch ends)")
 
 
 @dataclass(frozen=True)
@@ -169,6 +175,9 @@ class Solver:
                                        doc="keep the factorised Jacobian while each Newton iteration cuts the "
                                            "residual by this factor; 0 = full Newton")
     quadrature_degree: int = _num(4, lo=0, integer=True, doc="quadrature degree of all integrals")
+    linear_solver: str = _choice("umfpack", ("mumps", "umfpack", "superlu", "klu", "petsc"),
+                                 "sparse direct solver of the Newton steps (PETSc's factor package); the serial "
+                                 "ones fall back to mumps when one mesh is split over several ranks")
     coupling_tol_m: float = _pos(1e-10, "coin position change at which the coin-DEA iteration has converged")
     coupling_max_it: int = _num(30, lo=0, integer=True, doc="coin-DEA iterations per step")
 
@@ -183,6 +192,13 @@ class Mesh:
     n_active: int = _num(1, lo=0, integer=True, doc="divisions through the active stack")
     n_passive: int = _num(1, lo=0, integer=True, doc="divisions through the passive layer")
     coin_size_m: float = _pos(1.5e-3, "target tetrahedron size of the coin mesh")
+    symmetry: str = _choice("none", ("none", "half_z"),
+                            "half_z: model the half z >= 0 with u_z = 0 on the mid-plane (the scene is symmetric "
+                            "in z); forces on the obstacle are doubled; n_width still counts the full width "
+                            "(ceil(n_width / 2) divisions across the half: the full mesh's half when even)")
+    x_grading: float = _num(1.0, lo=1.0, lo_open=False, hi=20.0,
+                            doc="ratio of the element length at the clamp to the one at the free end (>= 1; "
+                                "1 = uniform; > 1 refines toward the tip and the coin)")
 
 
 @dataclass(frozen=True)

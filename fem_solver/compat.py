@@ -269,6 +269,54 @@ def integration_measures(mesh, cell_tags, facet_tags, quadrature_degree):
     return dx, ds
 
 
+#: scene names of the contact quadrature rules -> FFCx's names
+QUADRATURE_RULES = {"gauss": "default", "gauss_lobatto": "GLL"}
+
+
+def facet_measure(mesh, facet_tags, tag, degree, rule="gauss"):
+    """The ds measure of one tagged facet group with its own quadrature: degree and rule
+    (``gauss``: Gauss–Legendre points inside the facet; ``gauss_lobatto``: Gauss–Lobatto–
+    Legendre points, which include the facet's edges and corners)."""
+    md = {"quadrature_degree": degree, "quadrature_rule": QUADRATURE_RULES[rule]}
+    return ufl.Measure("ds", domain=mesh, subdomain_data=facet_tags, subdomain_id=tag, metadata=md)
+
+
+def dirichlet_zero_component(space, mesh, facets, component: int, mixed: bool):
+    """u_component = 0 on the facets (the displacement is sub-space 0 when ``mixed``)."""
+    sub = space.sub(0).sub(component) if mixed else space.sub(component)
+    collapsed, _ = sub.collapse()
+    dofs = dolfinx.fem.locate_dofs_topological((sub, collapsed), mesh.topology.dim - 1, facets)
+    return dolfinx.fem.dirichletbc(dolfinx.fem.Function(collapsed), dofs, sub)
+
+
+def facet_quadrature_points(mesh, facets, degree, rule="gauss"):
+    """Physical points (n, 3) of a facet measure's quadrature (:func:`facet_measure`) on
+    the given facets, and the cell (n,) each lies in.
+
+    The facets are mapped by their vertices (bilinear on quadrilaterals, affine on
+    triangles): exact for the flat, straight-edged facets of the DEA's underside.
+    """
+    import basix
+    tdim = mesh.topology.dim
+    facets = np.asarray(facets, dtype=np.int32)
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    f2c = mesh.topology.connectivity(tdim - 1, tdim)
+    geom = dolfinx.cpp.mesh.entities_to_geometry(mesh._mesh, tdim - 1, facets, False)
+    quad = mesh.topology.cell_type == dolfinx.mesh.CellType.hexahedron
+    cell = basix.CellType.quadrilateral if quad else basix.CellType.triangle
+    qtype = basix.quadrature.string_to_type(QUADRATURE_RULES[rule])
+    ref, _ = basix.make_quadrature(qtype, cell, degree)
+    s, t = ref[:, 0], ref[:, 1]
+    if quad:   # dolfinx's vertex order: (0,0), (1,0), (0,1), (1,1)
+        shape = np.stack([(1 - s) * (1 - t), s * (1 - t), (1 - s) * t, s * t], axis=1)
+    else:
+        shape = np.stack([1 - s - t, s, t], axis=1)
+    corners = mesh.geometry.x[geom[:, :shape.shape[1]]]          # (facets, vertices, 3)
+    points = np.einsum("qv,fvd->fqd", shape, corners).reshape(-1, 3)
+    cells = np.repeat([f2c.links(f)[0] for f in facets], len(s)).astype(np.int32)
+    return points, cells
+
+
 def num_cells_global(mesh) -> int:
     imap = mesh.topology.index_map(mesh.topology.dim)
     return imap.size_global

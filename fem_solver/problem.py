@@ -25,12 +25,28 @@ SNES_REASONS = {getattr(PETSc.SNES.ConvergedReason, k): k for k in dir(PETSc.SNE
                 if not k.startswith("_") and isinstance(getattr(PETSc.SNES.ConvergedReason, k), int)}
 
 
+PARALLEL_FACTOR_PACKAGES = ("mumps",)
+
+
 @dataclass
 class SolveResult:
     converged: bool
     reason: str
     iterations: int
     residual: float
+
+
+def tip_element_length(scene) -> float:
+    """Length along x of the DEA's element at the free end (m), where the contact acts: the
+    uniform L / n, or the smallest of a graded mesh (``mesh.x_grading``, a geometric
+    progression with clamp/tip ratio g over n elements). The normal penalty scales with it."""
+    m = scene.mesh
+    n = m.n_length * 2 ** m.level
+    L, g = scene.dea.length_m, m.x_grading
+    if g == 1.0 or n < 2:
+        return L / n
+    r = g ** (1.0 / (n - 1))
+    return L * (r - 1.0) / (r ** n - 1.0)
 
 
 class DEAProblem:
@@ -79,7 +95,12 @@ class DEAProblem:
 
         qd = sv.quadrature_degree
         self.dx, self.ds = compat.integration_measures(mesh, cell_tags, facet_tags, qd)
+        self.ds_contact = compat.facet_measure(mesh, facet_tags, groups.DEA_CONTACT, scene.contact.quadrature_degree,
+                                               scene.contact.quadrature_rule)
+        # a half model (z >= 0) carries half of every force on the obstacle
+        self.symmetry_factor = 2.0 if scene.mesh.symmetry == "half_z" else 1.0
         self._tip_measure(qd)
+        self._facet_tags = facet_tags
         self._build_forms(cell_tags, facet_tags)
         self._build_snes()
 
@@ -111,10 +132,10 @@ class DEAProblem:
         self.contact, self._underside = None, None
         if self.obstacle is not None:
             lay = self.layout
-            h = d.length_m / (sc.mesh.n_length * 2 ** sc.mesh.level)
+            h = tip_element_length(sc)
             self.mu_t = dolfinx.fem.Constant(self.mesh, float(self.obstacle.mu_t))
             self.contact = contact.contact_terms(
-                u, self.u_old, v, self.X, self.X_old, self.dt, self.ds(groups.DEA_CONTACT),
+                u, self.u_old, v, self.X, self.X_old, self.dt, self.ds_contact,
                 center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
                 edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=sc.contact.penalty_scale * d.youngs_modulus_Pa / h,
                 slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
@@ -143,6 +164,9 @@ class DEAProblem:
         clamp = compat.facets_with_tag(facet_tags, groups.CLAMP)
         sub = 0 if self.has_parts else None
         bcs = [compat.dirichlet_zero(self.W, self.mesh, clamp, subspace=sub)]
+        if self.scene.mesh.symmetry == "half_z":
+            mid = compat.facets_with_tag(facet_tags, groups.SYMMETRY)
+            bcs.append(compat.dirichlet_zero_component(self.W, self.mesh, mid, 2, self.has_parts))
         if self.coupled:
             k = len(self.parts) - 1
             bottom = compat.facets_with_tag(facet_tags, groups.ELECTRODE_BOTTOM)
@@ -177,7 +201,7 @@ class DEAProblem:
         ksp.setType("preonly")
         pc = ksp.getPC()
         pc.setType("lu")
-        pc.setFactorSolverType("mumps")
+        pc.setFactorSolverType(self.factor_package())
         snes.setErrorIfNotConverged(False)
         snes.setFromOptions()
         for key in self._options:
@@ -185,6 +209,15 @@ class DEAProblem:
         self.snes = snes
         self._jacobian_ready, self._last_fnorm = False, 0.0
         self.jacobian_assemblies = self.jacobian_reuses = 0
+
+    def factor_package(self) -> str:
+        """``solver.linear_solver``, or mumps when the mesh is split over ranks and the
+        chosen package is serial."""
+        chosen = self.scene.solver.linear_solver
+        if self.comm.size > 1 and chosen not in PARALLEL_FACTOR_PACKAGES:
+            log.info("solver.linear_solver = %r is serial; using mumps on %d ranks", chosen, self.comm.size)
+            return "mumps"
+        return chosen
 
     def _eval_F(self, snes, x, b):
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -262,7 +295,8 @@ class DEAProblem:
         """(Fx, Fy): force of the DEA on the obstacle, N (Fy pressing, positive downward)."""
         if self.contact is None:
             return 0.0, 0.0
-        return (compat.assemble_scalar(self.Fx_form, self.comm), compat.assemble_scalar(self.Fy_form, self.comm))
+        k = self.symmetry_factor
+        return (k * compat.assemble_scalar(self.Fx_form, self.comm), k * compat.assemble_scalar(self.Fy_form, self.comm))
 
     def obstacle_forces_from_reaction(self) -> tuple[float, float]:
         """(Fx, Fy) of the DEA on the obstacle from the clamp reaction, not from the contact
@@ -281,11 +315,15 @@ class DEAProblem:
         rx, ry = (compat.sum_entries(b, rows, self.comm) for rows in self._clamp_rows)
         weight = (self.scene.dea.density_kg_m3 * self.scene.gravity_m_s2 * float(self.gravity_scale.value)
                   * self.volume) if self.has_gravity else 0.0
-        return rx, weight - ry
+        k = self.symmetry_factor
+        return k * rx, k * (weight - ry)
 
     def tip_displacement(self) -> np.ndarray:
         """Mean displacement of the free-end face (m)."""
-        return np.array([compat.assemble_scalar(f, self.comm) for f in self.tip_forms]) / self.tip_area
+        mean = np.array([compat.assemble_scalar(f, self.comm) for f in self.tip_forms]) / self.tip_area
+        if self.symmetry_factor != 1.0:
+            mean[2] = 0.0   # u_z is odd in z: its mean over the whole face is 0
+        return mean
 
     def max_penetration(self) -> float:
         """Largest penetration of the DEA's underside nodes into the obstacle (m): the signed
@@ -303,6 +341,29 @@ class DEAProblem:
         depth = -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
                                                    self.obstacle.edge_radius_m)
         local = float(np.max(depth, initial=0.0))
+        return self.comm.allreduce(local, op=MPI.MAX)
+
+    def max_penetration_at_points(self) -> float:
+        """Largest penetration into the obstacle (m) at the contact integral's own
+        quadrature points on the DEA's underside — the only places where the penalty and the
+        friction act (``contact.quadrature_degree`` / ``quadrature_rule``)."""
+        if self.contact is None:
+            return 0.0
+        lay = self.layout
+        if getattr(self, "_contact_points", None) is None:
+            facets = compat.facets_with_tag(self._facet_tags, groups.DEA_CONTACT)
+            sc = self.scene.contact
+            self._contact_points = compat.facet_quadrature_points(self.mesh, facets, sc.quadrature_degree,
+                                                                  sc.quadrature_rule)
+            self._u_view = self.w.sub(0) if self.has_parts else self.w
+        points, cells = self._contact_points
+        local = 0.0
+        if len(points):
+            x = points + self._u_view.eval(points, cells)
+            rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
+            depth = -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
+                                                       self.obstacle.edge_radius_m)
+            local = float(np.max(depth, initial=0.0))
         return self.comm.allreduce(local, op=MPI.MAX)
 
     def mean_volume_change(self) -> float:

@@ -20,7 +20,19 @@ m = 1.36 g): ≈ 0.30 at the largest step, 1/720 s, so even the plain fixed poin
 the secant on G(X) = x(X) − X converges in 1 (stick) to 2–3 (slip) warm-started solves
 (docs/physics.md, "The coin and the coupling").
 
-A failed solve is restored and the step retried as ``1 / time.cutback`` (rounded up) equal
+Each (sub-)step starts from the predictor (linear extrapolation by the ratio of the step to
+the last one; none where the voltage turns) with full Newton steps; a solve that fails, or
+converges on another branch (the DEA's free end moved more than
+:data:`MAX_TIP_MOVE_PER_STEP` of its thickness in one step), is tried once more with a
+backtracking line search, which then stays on for the run. Why: where the tip's
+rate-regularised friction reverses (a triangle's peak, a random input's turn), full Newton
+steps cycle (the friction flips within a slip of ε_v Δt), cut-backs only sharpen that, and
+on the shipped mesh the C1 triangle crawled on at 43 µs steps until one converged on the
+free-curling DEA (tip +26 mm / −32 mm, contact lost, the coin later pushed to −6.2 mm). With
+the line search that step converges at full size; ramps never need it and are unchanged
+to the bit.
+
+A step that still fails is restored and retried as ``1 / time.cutback`` (rounded up) equal
 sub-steps, the voltage interpolated linearly between the step's start and end values, so
 the step still ends at t + Δt and V_end; a failing sub-step is cut again. After more than
 ``time.max_cutbacks`` cut-backs in a row from one accepted state, or below
@@ -79,6 +91,7 @@ class StepRecord:
     coupling_iterations: int
     cutbacks: int
     penetration_m: float
+    penetration_qp_m: float
     stick: int
     force_balance_residual_N: float
     tip_ux: float
@@ -90,6 +103,12 @@ class StepRecord:
 
 
 PLACEMENT_MIN_STEP = 1e-3  # smallest gravity-continuation step of the initial placement
+#: largest move of the DEA's free-end face in one (sub-)step, as a fraction of the DEA's thickness;
+#: a converged solve that moves it further jumped to another equilibrium branch and is cut back
+#: (legitimate steps of the shipped runs move it ≤ 4e-5 m = 0.013 h; the jump it rejects: 38 mm = 13 h)
+MAX_TIP_MOVE_PER_STEP = 0.25
+#: SNES line search of the second try of a (sub-)step whose full-Newton-step solve failed
+LINE_SEARCH_RETRY = "bt"
 
 
 def scene_protocol(scene) -> Protocol:
@@ -125,7 +144,11 @@ class Stepper:
         self.coupling_slope = -1.0  # dG/dX of the coin-position fixed point, refined by secants
         self.t, self.V = 0.0, math.nan
         self.substep_dt: float | None = None   # also the predictor's last interval
+        self.substep_dV = 0.0                  # voltage change over that interval (predictor direction)
+        self.line_search = "basic"             # of the Newton solve under way (LINE_SEARCH_RETRY on a retry)
         self.started = False
+        self.tip_move_max_m = MAX_TIP_MOVE_PER_STEP * (problem.scene.dea.active_thickness_m
+                                                       + problem.scene.dea.passive_thickness_m)
 
     # --- one coupled solve ------------------------------------------------------------
 
@@ -180,6 +203,7 @@ class Stepper:
         tip = p.tip_displacement()
         rec = StepRecord(t=t, x=self.coin.x, u=self.coin.u, V=V, dt=dt, Fx=Fx, Fy=Fy, newton_iterations=its,
                          coupling_iterations=coupling_its, cutbacks=cutbacks, penetration_m=p.max_penetration(),
+                         penetration_qp_m=p.max_penetration_at_points(),
                          stick=int(self.coin.stick), force_balance_residual_N=residual, tip_ux=tip[0],
                          tip_uy=tip[1], tip_uz=tip[2], mean_abs_J_minus_1=p.mean_volume_change(),
                          volume_change=p.net_volume_change(),
@@ -261,7 +285,8 @@ class Stepper:
             raise ValueError(f"voltage must be finite, got {V_end!r}")
         ts = self.scene.time
         wall0 = _time.perf_counter()
-        t0, V0, coin0, dt_prev0 = self.t, self.V, self.coin, self.substep_dt
+        t0, V0, coin0, dt_prev0, dV_prev0 = self.t, self.V, self.coin, self.substep_dt, self.substep_dV
+        tip0 = self.p.tip_displacement()
         saved = None                          # the accepted arrays, copied at the first cut-back
         substeps = []                         # records of the accepted sub-steps, for a SolveFailed
         its = cits = cutbacks = fails = 0     # cut-backs: in the step; fails: in a row at one point
@@ -272,8 +297,9 @@ class Stepper:
             step = dt - elapsed if last and elapsed > 0 else h
             t_end = t0 + dt if last else t0 + elapsed + step
             V = V_end if last else V0 + (V_end - V0) * ((elapsed + step) / dt)
-            self.p.predict(0.0 if self.substep_dt is None else step / self.substep_dt)
-            ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step)
+            V_start = V0 + (V_end - V0) * (elapsed / dt)
+            ok, reason, k_its, k_cits, coin, forces = self._attempt(V, step, self._predictor_ratio(step, V - V_start),
+                                                                    tip0)
             if not ok:
                 self.p.restore()
                 if saved is None:
@@ -283,7 +309,7 @@ class Stepper:
                          t_end - step, step, reason, k_its)
                 h = step * ts.cutback
                 if fails > ts.max_cutbacks or h < ts.dt_min_s:
-                    self._rollback(saved, coin0, dt_prev0)
+                    self._rollback(saved, coin0, dt_prev0, dV_prev0)
                     raise SolveFailed(t_end, V, reason, len(self.records) - 1, self.records, substeps)
                 remaining = dt - elapsed
                 n_left = max(1, math.ceil(remaining / h * (1 - 1e-12)))
@@ -293,21 +319,95 @@ class Stepper:
             prev, self.coin = self.coin, coin
             balance = self._balance_residual(prev, coin, step)
             residual = max(residual, balance)
-            self.substep_dt = step
+            self.substep_dt, self.substep_dV = step, V - V_start
             if last:
                 break
             sub = self._record(t_end, V, step, k_its, k_cits, cutbacks, _time.perf_counter() - wall0, forces, balance)
             substeps += [sub] if sub is not None else []
             self.p.accept()
+            tip0 = self.p.tip_displacement()
             elapsed += step
             n_left -= 1
         rec = self._record(t0 + dt, V_end, dt, its, cits, cutbacks, _time.perf_counter() - wall0, forces,
                            residual)
         if rec is None:
-            self._rollback(saved, coin0, dt_prev0)
+            self._rollback(saved, coin0, dt_prev0, dV_prev0)
             raise SolveFailed(t0 + dt, V_end, "NON_FINITE_OUTPUT", len(self.records) - 1, self.records)
         self.p.accept()
         return self._keep(rec)
+
+    def _attempt(self, V: float, step: float, ratio: float, tip_before):
+        """One (sub-)step from the predictor: the coupled solve with full Newton steps and, if
+        that fails (or jumps branch, :meth:`_continuous`), once more from the same predictor
+        with a backtracking line search; returns what :meth:`_coupled_solve` returns, the
+        iterations summed over both tries.
+
+        Full Newton steps cycle where the rate-regularised friction reverses over the contact
+        (its tangential force flips within a slip of ε_v Δt): at the C1 triangle's peak,
+        |F| alternated between 2.9e-2 and 3.5e-2 for 40 iterations at every step size down
+        to 1.4 µs, so cutting back only sharpens the flip. The line search
+        (``snes_linesearch_type bt``) converges that step at full size in 12–17 iterations.
+        Steps that converge with full steps (every step of the ramps) never see it. Once the
+        line search has saved a step it stays on for the rest of the run (the first try of
+        every later step uses it: a turning load turns again, and a failed full-step try
+        costs up to ``solver.newton_max_it`` iterations). A step whose retry fails too goes
+        back to full Newton steps for its cut-backs; once the line search is on, a failed
+        try is cut back with it.
+        """
+        self.p.predict(ratio)
+        ok, reason, its, cits, coin, forces = self._coupled_solve(V, step)
+        if ok:
+            ok, reason = self._continuous(tip_before, reason)
+        if ok or self.line_search == LINE_SEARCH_RETRY:
+            return ok, reason, its, cits, coin, forces
+        log.info("t = %.6g s, dt = %.3g s: %s with full Newton steps; retrying with a line search",
+                 self.t, step, reason)
+        self.p.restore()
+        self.p.predict(ratio)
+        self._set_line_search(LINE_SEARCH_RETRY)
+        ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step)
+        if ok:
+            ok, reason = self._continuous(tip_before, reason)
+        if not ok:
+            self._set_line_search("basic")
+        return ok, reason, its + k_its, cits + k_cits, coin, forces
+
+    def _set_line_search(self, kind: str) -> None:
+        """The SNES line search of the problem's Newton (``basic``: full steps, the problem's own)."""
+        from petsc4py import PETSc
+        snes = self.p.snes
+        PETSc.Options()[(snes.getOptionsPrefix() or "") + "snes_linesearch_type"] = kind
+        snes.setFromOptions()
+        self.line_search = kind
+
+    def _predictor_ratio(self, step: float, dV: float) -> float:
+        """Extrapolation factor of the predictor for a (sub-)step of ``step`` s over which the
+        voltage changes by ``dV``: the ratio of the step to the last one, except where the
+        voltage turns (``dV`` against the last step's change: a triangle's peak, a random
+        input's turn, a controller reversing), where the state is *not* extrapolated (0).
+
+        Extrapolating across a turn pushes the DEA further the way it was going while the
+        load now pulls it back, and after a short kink-landing step by several times that
+        step (C1 triangle at 400 V: 3.6× the 0.39 ms landing step): the solve then needs
+        cut-backs, whose tiny sub-steps make the rate-regularised friction a near-jump in the
+        displacement (its width is ε_v Δt) — see :data:`MAX_TIP_MOVE_PER_STEP`.
+        """
+        if self.substep_dt is None:
+            return 0.0
+        if dV * self.substep_dV < 0.0:
+            return 0.0
+        return step / self.substep_dt
+
+    def _continuous(self, tip_before, reason: str) -> tuple[bool, str]:
+        """Refuse a converged solve whose free end moved more than ``tip_move_max_m`` in one
+        (sub-)step: Newton left the branch (e.g. it overshot through the coin and converged on
+        the free-curling DEA, contact lost), which a quasi-static path never does. The step is
+        then cut back like a diverged one; if the jump persists the step fails (SolveFailed)
+        instead of recording a wrong branch."""
+        move = float(np.linalg.norm(self.p.tip_displacement() - tip_before))
+        if move > self.tip_move_max_m:
+            return False, f"BRANCH_JUMP (free end moved {move * 1e3:.3g} mm in one step)"
+        return True, reason
 
     def _continuation(self, what: str, solve_at, V: float):
         """Solve ``solve_at(scale)`` for scale 0 → 1 in growing steps, cut by 4 on failure.
@@ -336,14 +436,14 @@ class Stepper:
         p = self.p
         return p.w_old.x.array.copy(), p.w_older.x.array.copy(), float(p.X_old.value)
 
-    def _rollback(self, saved, coin: CoinState, dt_prev) -> None:
+    def _rollback(self, saved, coin: CoinState, dt_prev, dV_prev=0.0) -> None:
         """Back to the state of the last record."""
         p = self.p
         if saved is not None:
             p.w_old.x.array[:], p.w_older.x.array[:] = saved[0], saved[1]
             p.X_old.value = saved[2]
         p.restore()
-        self.coin, self.substep_dt = coin, dt_prev
+        self.coin, self.substep_dt, self.substep_dV = coin, dt_prev, dV_prev
 
     def run(self, protocol: Callable[[float], float] | None = None, end_time_s: float | None = None
             ) -> list[StepRecord]:
@@ -363,6 +463,7 @@ class Stepper:
         kinks = [k for k in getattr(protocol, "kinks", lambda: [])() if k < end]
         self.start(protocol(0.0))
         dt = ts.dt_initial_s
+        dt_uncut = None          # the step size before the last cut-back, grown back to
         bar = tqdm(total=end, disable=not self.progress, unit="s", desc=sc.setup or sc.scene.name,
                    bar_format="{desc}: {percentage:3.0f}%|{bar}| t={n:.3f}/{total:.3f} s [{elapsed}<{remaining}]")
         try:
@@ -373,9 +474,14 @@ class Stepper:
                 rec = self.advance(protocol(self.t + step), step)
                 bar.update(step)
                 if rec.cutbacks:
+                    dt_uncut = max(dt_uncut or 0.0, dt)
                     dt = self.substep_dt
                 elif rec.newton_iterations <= 4 * rec.coupling_iterations:
                     dt *= ts.growth
+                elif dt_uncut is not None and dt < dt_uncut:
+                    dt = min(dt * ts.growth, dt_uncut)   # back toward the size before the cut-back
+                if dt_uncut is not None and dt >= dt_uncut:
+                    dt_uncut = None
         finally:
             bar.close()
         return self.records

@@ -44,19 +44,43 @@ def _entities_in_box(dim, xmin, ymin, zmin, xmax, ymax, zmax):
 
 
 def _divisions(scene: Scene) -> dict:
+    """Element divisions of the modelled DEA (``z``: across the modelled width, half of
+    ``n_width`` with ``mesh.symmetry = "half_z"``)."""
     m = scene.mesh
     k = 2 ** m.level
-    return {"x": m.n_length * k, "z": m.n_width * k, "active": m.n_active * k, "passive": m.n_passive * k}
+    z = m.n_width * k
+    if m.symmetry == "half_z":
+        z = (z + 1) // 2
+    return {"x": m.n_length * k, "z": z, "active": m.n_active * k, "passive": m.n_passive * k}
+
+
+def _z_range(scene: Scene) -> tuple[float, float]:
+    """The modelled width: (-w/2, w/2), or (0, w/2) for the half model."""
+    w = scene.dea.width_m
+    return (0.0 if scene.mesh.symmetry == "half_z" else -w / 2), w / 2
+
+
+def _x_progression(scene: Scene, curve: int, count: int) -> float:
+    """Gmsh's progression coefficient along an x curve for ``mesh.x_grading`` = g (element
+    length at the clamp / at the free end): r = g^(1/(n-1)) from the free end, inverted when
+    the curve starts at the clamp."""
+    g = scene.mesh.x_grading
+    if g == 1.0 or count < 2:
+        return 1.0
+    r = g ** (1.0 / (count - 1))
+    start, _ = (gmsh.model.getValue(0, abs(t), []) for _, t in gmsh.model.getBoundary([(1, curve)], oriented=True))
+    return r if start[0] < -scene.dea.length_m / 2 else 1.0 / r
 
 
 def _add_dea(scene: Scene) -> dict:
     """Add the two DEA layers; return the volume tags by name."""
     lay = layout(scene)
     occ = gmsh.model.occ
-    L, w = lay.length_m, lay.width_m
+    L = lay.length_m
+    z0, z1 = _z_range(scene)
     tags = {}
     for name, (y0, y1) in (("active", lay.active_y_m), ("passive", lay.passive_y_m)):
-        tags[name] = occ.addBox(-L, y0, -w / 2, L, y1 - y0, w)
+        tags[name] = occ.addBox(-L, y0, z0, L, y1 - y0, z1 - z0)
     _, pieces = occ.fragment([(3, tags["active"])], [(3, tags["passive"])])
     occ.synchronize()
     return {"active": pieces[0][0][1], "passive": pieces[1][0][1]}
@@ -74,6 +98,8 @@ def _structure_dea(scene: Scene, vols: dict) -> None:
         x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, c)
         if x1 - x0 > _TOL:
             count = n["x"]
+            gmsh.model.mesh.setTransfiniteCurve(c, count + 1, "Progression", _x_progression(scene, c, count))
+            continue
         elif z1 - z0 > _TOL:
             count = n["z"]
         else:
@@ -100,6 +126,7 @@ def _tag_groups(scene: Scene, vols: dict, coin_tag) -> None:
     lay = layout(scene)
     L, w = lay.length_m, lay.width_m
     ytop = lay.y_bottom_m + lay.thickness_m
+    zmin, _ = _z_range(scene)
 
     def add(dim, entities, tag, name):
         gmsh.model.addPhysicalGroup(dim, entities, tag)
@@ -113,6 +140,8 @@ def _tag_groups(scene: Scene, vols: dict, coin_tag) -> None:
         return [t for t in _entities_in_box(2, *box) if t in dea_faces]
 
     add(2, dea_box(0, lay.y_bottom_m, -w / 2, 0, ytop, w / 2), groups.CLAMP, "clamp")
+    if scene.mesh.symmetry == "half_z":
+        add(2, dea_box(-L, lay.y_bottom_m, zmin, 0, ytop, zmin), groups.SYMMETRY, "symmetry")
     (a0, a1) = lay.active_y_m
     add(2, dea_box(-L, a1, -w / 2, 0, a1, w / 2), groups.ELECTRODE_TOP, "electrode_top")
     add(2, dea_box(-L, a0, -w / 2, 0, a0, w / 2), groups.ELECTRODE_BOTTOM, "electrode_bottom")

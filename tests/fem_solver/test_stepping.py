@@ -23,6 +23,11 @@ INTEGER = ("newton_iterations", "coupling_iterations", "cutbacks", "stick")
 #: changed on purpose: wall time, and the force balance is now the independent one
 NOT_COMPARED = ("wall_time_s", "force_balance_residual_N")
 ROUND_OFF = 1e-12   # relative to the column's largest value; measured: 0 (bit-identical)
+#: scene keys and variables added after the fixture was written (issue 12); C3_TEST pins the keys
+#: to the behaviour the fixture had
+ADDED_KEYS = {"contact": ("quadrature_degree", "quadrature_rule"), "mesh": ("symmetry", "x_grading"),
+              "solver": ("linear_solver",)}
+ADDED_VARIABLES = ("penetration_qp_m",)
 
 
 def test_run_reproduces_the_records_before_the_stepping_api(c3_run):
@@ -31,9 +36,12 @@ def test_run_reproduces_the_records_before_the_stepping_api(c3_run):
     sc, path = c3_run
     new, old = xr.open_dataset(path), xr.open_dataset(c3_reference())
     same_scene = [tomllib.loads(d.attrs["scene_toml"]) for d in (new, old)]
+    for section, keys in ADDED_KEYS.items():                             # keys added since, at the old behaviour
+        for key in keys:
+            same_scene[0][section].pop(key)
     assert same_scene[0] == same_scene[1]                                # the same resolved scene
     assert new.sizes == old.sizes
-    assert set(new.data_vars) == set(old.data_vars)
+    assert set(new.data_vars) - set(ADDED_VARIABLES) == set(old.data_vars)
     for name in old.data_vars:
         if name in NOT_COMPARED:
             continue
@@ -132,14 +140,15 @@ def test_advance_takes_a_voltage_chosen_at_run_time(tmp_path):
 
 
 class Injected:
-    """Wraps Stepper._coupled_solve: attempts whose index is in ``fail`` diverge (leaving a
+    """Wraps Stepper._attempt (one try of a (sub-)step: the full-Newton-step solve and its
+    retry with a line search): attempts whose index is in ``fail`` diverge (leaving a
     scribbled state behind, as a real divergence does); every attempt's (V, dt) is logged."""
 
     def __init__(self, stepper, fail):
-        self.stepper, self.solve, self.fail = stepper, stepper._coupled_solve, fail
+        self.stepper, self.attempt, self.fail = stepper, stepper._attempt, fail
         self.calls, self.its = [], []
 
-    def __call__(self, V, dt):
+    def __call__(self, V, dt, ratio, tip_before):
         index = len(self.calls)
         self.calls.append((V, dt))
         if index in self.fail or (self.fail == "all"):
@@ -147,7 +156,7 @@ class Injected:
             p.w.x.array[:] += 1e-3
             p.set_load(V, 1.0, dt)
             return False, "DIVERGED_INJECTED", 7, 1, None, None
-        out = self.solve(V, dt)
+        out = self.attempt(V, dt, ratio, tip_before)
         self.its.append(out[2:4])
         return out
 
@@ -165,7 +174,7 @@ def test_a_failed_step_is_cut_into_substeps_that_land_on_its_end(tmp_path, monke
     broken, plain = steppers
     t0, V0, dt, V_end = broken.t, broken.V, 2e-3, 56.0
     spy = Injected(broken, fail={0, 2})
-    monkeypatch.setattr(broken, "_coupled_solve", spy)
+    monkeypatch.setattr(broken, "_attempt", spy)
     rec = broken.advance(V_end, dt)
     dV = V_end - V0
     expected = [(V_end, dt), (V0 + dV / 2, dt / 2), (V_end, dt / 2), (V0 + 3 * dV / 4, dt / 4), (V_end, dt / 4)]
@@ -193,7 +202,7 @@ def test_a_step_that_cannot_be_solved_rolls_back(tmp_path, monkeypatch):
     broken, plain = steppers
     n, t0, V0, coin0 = len(broken.records), broken.t, broken.V, broken.coin
     spy = Injected(broken, fail=set(range(2, 100)) | {0})
-    monkeypatch.setattr(broken, "_coupled_solve", spy)
+    monkeypatch.setattr(broken, "_attempt", spy)
     with pytest.raises(SolveFailed, match="DIVERGED_INJECTED") as info:
         broken.advance(60.0, 2e-3)
     cuts = broken.scene.time.max_cutbacks
@@ -239,3 +248,63 @@ def test_run_follows_a_protocol_callable(tmp_path):
         stepper.advance(0.0, -1e-3)
     with pytest.raises(ValueError):
         stepper.advance(math.nan, 1e-3)
+
+
+def test_a_triangle_turns_at_its_peak_without_cut_backs(tmp_path):
+    """C3 at test size, 0 -> 400 V in 0.25 s and back down to 200 V at 0.375 s. At the peak the
+    tip's friction on the coin reverses: full Newton steps cycled there (|F| alternating for 40
+    iterations at every step size), the stepper cut back 9 times and crawled on at a fraction of
+    the step, and on the shipped mesh (C1, 0.5 s ramps) a later tiny step converged on another
+    branch (tip +26 mm / -32 mm, contact lost, the coin later pushed to -6.2 mm). Now the step
+    after the peak is retried with a line search: no cut-back, full steps, the free end moves
+    continuously, contact holds, and the coin stops and is pulled back toward the clamp."""
+    stepper = _stepper(tmp_path, "load.protocol='triangle'", "load.ramp_time_s=0.25", "load.end_time_s=0.375")
+    records = stepper.run()
+    t = np.array([r.t for r in records])
+    x = np.array([r.x for r in records])
+    tip = np.array([(r.tip_ux, r.tip_uy) for r in records])
+    peak = int(np.flatnonzero(np.isclose(t, 0.25, rtol=0, atol=1e-12))[0])
+    assert records[peak].V == 400.0 and x[peak] < -5e-4           # the coin slid toward -x on the way up
+    assert sum(r.cutbacks for r in records) == 0                   # was 9, all at the reversal
+    dt_max = stepper.scene.time.dt_max_s
+    assert all(r.dt == pytest.approx(dt_max, rel=1e-9) for r in records[peak + 1:-1])
+    assert float(np.abs(np.diff(tip, axis=0)).max()) < 1e-4       # legitimate steps move it <= 2.2e-5 m
+    Fy = np.array([r.Fy for r in records])
+    assert Fy[peak:].min() > 0.2 * Fy[peak]                        # the tip stays on the coin (Fy(200 V) ~ 0.3 Fy(400 V))
+    assert float(np.abs(np.diff(Fy)).max()) < 0.02 * Fy[peak]      # and presses continuously
+    after = x[peak:]
+    # the coin, sliding at u toward -x, stops within a few steps (kinetic friction and the
+    # reversed tip friction both brake it) and does not go further than sliding to rest
+    # under ground friction alone would take it
+    g, mu_b = stepper.scene.gravity_m_s2, stepper.scene.coin.mu_b
+    assert after.min() >= x[peak] - records[peak].u ** 2 / (2 * mu_b * g) - 1e-9
+    assert x[-1] > after.min() + 1e-5                              # then pulled back toward the clamp
+
+
+def test_a_step_that_jumps_branch_is_not_recorded(tmp_path, monkeypatch):
+    """A converged solve whose free end moved 5 mm in one step (Newton landed on another
+    equilibrium, as at the C1 triangle's peak) is refused and the step taken again; the record
+    equals that of a stepper that never jumped."""
+    steppers = [_stepper(tmp_path / "a"), _stepper(tmp_path / "b")]
+    for s in steppers:
+        s.start()
+        for k in range(1, 4):
+            s.advance(10.0 * k, 2e-3)
+    jumped, plain = steppers
+    solve = jumped._coupled_solve
+    calls = []
+
+    def jump_once(V, dt):
+        out = solve(V, dt)
+        calls.append(jumped.line_search)
+        if len(calls) == 1:
+            jumped.p.w.x.array[:] += 5e-3                 # every displacement (and pressure) dof
+        return out
+
+    monkeypatch.setattr(jumped, "_coupled_solve", jump_once)
+    rec, ref = jumped.advance(40.0, 2e-3), plain.advance(40.0, 2e-3)
+    assert len(calls) >= 2                               # refused, then solved again
+    # the same state up to the Newton tolerance (the retry may take sub-steps; the jump was 5 mm)
+    assert abs(rec.tip_uy - ref.tip_uy) < 1e-7 and abs(rec.tip_ux - ref.tip_ux) < 1e-7
+    tol = jumped.scene.solver.coupling_tol_m
+    assert (rec.t, rec.V) == (ref.t, ref.V) and rec.x == pytest.approx(ref.x, abs=tol)

@@ -21,9 +21,14 @@ def test_every_scene_meshes_with_its_groups(name, cell, tiny_scene, tmp_path):
     for name_ in ("active", "passive", "clamp", "electrode_top", "electrode_bottom", "dea_contact"):
         assert g[name_]["cells"] > 0, name_
     d = sc.dea
-    assert g["active"]["volume_m3"] == pytest.approx(d.length_m * d.width_m * d.active_thickness_m, rel=1e-9)
-    assert g["passive"]["volume_m3"] == pytest.approx(d.length_m * d.width_m * d.passive_thickness_m, rel=1e-9)
-    assert g["clamp"]["area_m2"] == pytest.approx(d.width_m * (d.active_thickness_m + d.passive_thickness_m))
+    w = d.width_m / (2 if sc.mesh.symmetry == "half_z" else 1)       # the modelled width
+    assert g["active"]["volume_m3"] == pytest.approx(d.length_m * w * d.active_thickness_m, rel=1e-9)
+    assert g["passive"]["volume_m3"] == pytest.approx(d.length_m * w * d.passive_thickness_m, rel=1e-9)
+    assert g["clamp"]["area_m2"] == pytest.approx(w * (d.active_thickness_m + d.passive_thickness_m))
+    if sc.mesh.symmetry == "half_z":
+        assert g["symmetry"]["area_m2"] == pytest.approx(d.length_m * (d.active_thickness_m + d.passive_thickness_m))
+    else:
+        assert "symmetry" not in g
     assert summary["min_quality_detj_ratio"] > 0.1
     if sc.coin is None:
         assert "coin" not in g and "coin_top" not in g
@@ -88,4 +93,4 @@ def test_dolfinx_reads_under_mpirun(tiny_scene, tmp_path):
     proc = mpirun(2, str(script), str(path))
     assert proc.returncode == 0, proc.stderr
     n = summary["groups"]["active"]["cells"] + summary["groups"]["passive"]["cells"]
-    assert f"CELLS {n} SIZE 2 TAGS [11, 12, 13, 14]" in proc.stdout
+    assert f"CELLS {n} SIZE 2 TAGS [11, 12, 13, 14, 17]" in proc.stdout      # 17: the half model's mid-plane

@@ -1,0 +1,197 @@
+"""FEM accuracy studies of coin_pull C3 (issue 12): the converged reference, the contact
+quadrature, the friction regularisation ε_v and the candidate shipped meshes.
+
+    python bench/fem_study.py --study reference|quadrature|friction|candidates|all --out out/fem_study
+
+Each case is one ``deapull solve`` run (one core) into ``<out>/<case>/C3.nc``; a case whose
+dataset exists is not run again (the study resumes). The table compares every case with
+the reference: the finest half-model run, and the Richardson estimate of the travel from
+the three reference levels (observed order, error bound). It is printed and written as
+``<out>/<study>.csv`` / ``.md``; ``<out>/reference.json`` keeps the reference's numbers
+(``bench/bench_fem.py`` reads the committed copy in ``bench/reference/``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from deapull import dataset
+from deapull.io import atomic_write, markdown_table, write_csv, write_json, write_text
+
+log = logging.getLogger("fem_study")
+
+HALF = ("mesh.symmetry='half_z'",)
+UMF = ("solver.linear_solver='umfpack'",)
+
+
+def mesh(n_length, n_width, n_active=1, n_passive=1):
+    return (f"mesh.n_length={n_length}", f"mesh.n_width={n_width}", f"mesh.n_active={n_active}",
+            f"mesh.n_passive={n_passive}")
+
+
+def quad(rule, degree):
+    return (f"contact.quadrature_rule='{rule}'", f"contact.quadrature_degree={degree}")
+
+
+#: the reference ladder: half model, in plane x 1.5 then x 4/3, 2 elements through each layer,
+#: 8 elements across the half-width on the finest; 5 x 5 Gauss points per contact facet; a
+#: 1/180 s step cap (the time-step error of x(t) is 100x below the mesh error, docs/physics.md,
+#: and the cap makes the finest level affordable; ``dt`` measures it on the coarsest level)
+REF_DT = "time.dt_max_s=0.0055555555555556"
+REFERENCE = {f"ref-{n}x{w}x2x2": (*HALF, *UMF, *mesh(n, w, 2, 2), *quad("gauss", 8), REF_DT)
+             for n, w in ((16, 8), (24, 12), (32, 16))}
+REFERENCE_ORDER = tuple(REFERENCE)
+DT = {"dt-16x8x2x2-720": (*HALF, *UMF, *mesh(16, 8, 2, 2), *quad("gauss", 8))}
+
+QUADRATURE = {f"q-{n}x{w}-{rule}{deg}": (*HALF, *UMF, *mesh(n, w), *quad(rule, deg))
+              for n, w in ((16, 2), (16, 4), (32, 4))
+              for rule, deg in (("gauss", 4), ("gauss", 8), ("gauss_lobatto", 4), ("gauss_lobatto", 8))}
+
+FRICTION = {f"eps-{n}x{w}-{eps:g}": (*HALF, *UMF, *mesh(n, w), f"contact.slip_rate_regularisation_m_s={eps}")
+            for n, w in ((16, 2), (16, 4)) for eps in (1e-3, 1e-4, 1e-5, 1e-6)}
+
+CANDIDATES = {
+    "full-16x2-mumps": (),                                           # the old default
+    "half-16x2": (*HALF, *UMF),
+    "half-16x4": (*HALF, *UMF, *mesh(16, 4)),
+    "half-16x4-lob4": (*HALF, *UMF, *mesh(16, 4), *quad("gauss_lobatto", 4)),
+    "half-12x4-g2-lob4": (*HALF, *UMF, *mesh(12, 4), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x4-g2-lob4": (*HALF, *UMF, *mesh(16, 4), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x4x2x1-lob4": (*HALF, *UMF, *mesh(16, 4, 2, 1), *quad("gauss_lobatto", 4)),
+    "half-24x6-lob4": (*HALF, *UMF, *mesh(24, 6), *quad("gauss_lobatto", 4)),
+}
+
+STUDIES = {"reference": REFERENCE, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES}
+
+
+def solve(out: Path, name: str, overrides, extra=()) -> Path:
+    """Run one case unless its dataset exists; returns the dataset path."""
+    path = out / name / "C3.nc"
+    if dataset.is_complete(path):
+        return path
+    cmd = [sys.executable, "-m", "deapull.workflows", "solve", "--scene", "coin_pull", "--setup", "C3",
+           "--out", str(out / name)]
+    for o in (*overrides, *extra):
+        cmd += ["--set", o]
+    log.info("%s: %s", name, " ".join(cmd[3:]))
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"case {name} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    log.info("%s: done in %.0f s", name, time.perf_counter() - start)
+    return path
+
+
+def columns(path: Path) -> dataset.Run:
+    return dataset.read(path, ("t", "x", "newton_iterations", "penetration_m"), optional=("penetration_qp_m",))
+
+
+def richardson(travels, ratios):
+    """Observed order p and extrapolated value from three levels h1 > h2 > h3 with
+    refinement ratios r21 = h1/h2, r32 = h2/h3 (solved by fixed point for unequal ratios)."""
+    f1, f2, f3 = travels
+    r21, r32 = ratios
+    e21, e32 = f2 - f1, f3 - f2
+    if e21 == 0 or e32 == 0 or e21 * e32 < 0:
+        return float("nan"), f3, abs(e32)
+    p = 1.0
+    for _ in range(100):   # Celik et al. (2008), J. Fluids Eng. 130: the GCI procedure
+        q = math.log((r21 ** p - 1) / (r32 ** p - 1)) if r21 != r32 else 0.0
+        p_new = abs(math.log(abs(e21 / e32)) + q) / math.log(r32)
+        if abs(p_new - p) < 1e-10:
+            break
+        p = p_new
+    extrap = f3 + e32 / (r32 ** p - 1)
+    return p, extrap, abs(extrap - f3)
+
+
+def reference_summary(out: Path) -> dict:
+    runs = [columns(out / n / "C3.nc") for n in REFERENCE_ORDER]
+    travels = [float(np.max(np.abs(r.columns["x"]))) for r in runs]
+    p, extrap, bound = richardson(travels, (1.5, 4 / 3))
+    fine = runs[-1]
+    t = fine.columns["t"]
+    mae = [float(np.mean(np.abs(np.interp(t, r.columns["t"], r.columns["x"]) - fine.columns["x"])))
+           for r in runs[:-1]]
+    return {"cases": list(REFERENCE_ORDER), "travel_m": travels, "dofs": [int(r.attrs["mesh_dofs"]) for r in runs],
+            "wall_s": [float(r.attrs["wall_time_total_s"]) for r in runs], "observed_order": p,
+            "travel_extrapolated_m": extrap, "travel_error_bound_m": bound,
+            "travel_error_bound_rel": bound / travels[-1], "x_mae_vs_finest_m": mae,
+            "label": f"Richardson over {', '.join(REFERENCE_ORDER)}", "travel_ref_m": extrap,
+            "error_bound_rel": bound / travels[-1],
+            "slip_rate_reg_m_s": float(fine.attrs["contact_slip_rate_reg_m_s"]),
+            "finest": str(out / REFERENCE_ORDER[-1] / "C3.nc")}
+
+
+def compare(out: Path, names, cases, ref: dict) -> list[dict]:
+    fine = columns(Path(ref["finest"]))
+    t_ref, x_ref = fine.columns["t"], fine.columns["x"]
+    travel_ref = ref["travel_extrapolated_m"]
+    rows = []
+    for name in names:
+        r = columns(out / name / "C3.nc")
+        x = r.columns["x"]
+        travel = float(np.max(np.abs(x)))
+        mae = float(np.mean(np.abs(np.interp(t_ref, r.columns["t"], x) - x_ref)))
+        qp = r.columns.get("penetration_qp_m")
+        rows.append({"case": name, "dofs": int(r.attrs["mesh_dofs"]), "points": len(x),
+                     "wall_s": float(r.attrs["wall_time_total_s"]),
+                     "newton_its": int(np.sum(r.columns["newton_iterations"])), "travel_mm": travel * 1e3,
+                     "travel_err_pct": 100 * (travel / travel_ref - 1), "x_mae_pct": 100 * mae / travel_ref,
+                     "pen_nodes_um": 1e6 * float(np.max(r.columns["penetration_m"])),
+                     "pen_qp_um": 1e6 * float(np.max(qp)) if qp is not None else float("nan")})
+    return rows
+
+
+TABLE = (("case", "case", ""), ("dofs", "dofs", "d"), ("points", "points", "d"), ("wall s", "wall_s", ".1f"),
+         ("Newton its", "newton_its", "d"), ("travel mm", "travel_mm", ".4f"), ("travel err %", "travel_err_pct", "+.2f"),
+         ("x(t) MAE %", "x_mae_pct", ".2f"), ("max pen. nodes µm", "pen_nodes_um", ".2f"),
+         ("max pen. points µm", "pen_qp_um", ".2f"))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--study", choices=(*STUDIES, "all"), default="all")
+    ap.add_argument("--out", default="out/fem_study")
+    ap.add_argument("--cases", default="", help="comma-separated subset of the study's cases")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    out = Path(args.out)
+    studies = list(STUDIES) if args.study == "all" else [args.study]
+    chosen = {study: [c for c in args.cases.split(",") if c] or list(STUDIES[study]) for study in studies}
+    for study in studies:                     # run what is missing (resumes)
+        for name in chosen[study]:
+            solve(out, name, STUDIES[study][name])
+    missing = [n for n in REFERENCE_ORDER if not dataset.is_complete(out / n / "C3.nc")]
+    if missing:
+        print(f"reference incomplete: {', '.join(missing)} missing; run --study reference")
+        return 0
+    ref = reference_summary(out)
+    write_json(out / "reference.json", ref, indent=2)
+    # what bench/bench_fem.py --reference reads (copy the folder to bench/reference to ship it)
+    write_json(out / "reference" / "reference.json", ref, indent=2)
+    atomic_write(out / "reference" / "C3_reference.nc", lambda tmp: shutil.copyfile(ref["finest"], tmp))
+    print(f"reference: travel {[f'{1e3 * v:.4f}' for v in ref['travel_m']]} mm at dofs {ref['dofs']}; "
+          f"observed order {ref['observed_order']:.2f}; Richardson {1e3 * ref['travel_extrapolated_m']:.4f} mm "
+          f"± {1e3 * ref['travel_error_bound_m']:.4f} mm ({100 * ref['travel_error_bound_rel']:.2f} % of the finest)")
+    for study in studies:
+        rows = compare(out, chosen[study], STUDIES[study], ref)
+        write_csv(out / f"{study}.csv", rows, [k for _, k, _ in TABLE])
+        table = markdown_table(rows, TABLE)
+        write_text(out / f"{study}.md", table + "\n")
+        print(f"\n{study} (errors against the Richardson travel {1e3 * ref['travel_extrapolated_m']:.4f} mm and "
+              f"the finest reference's x(t))\n{table}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
