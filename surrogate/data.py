@@ -216,6 +216,10 @@ class Transitions:
     v_prev : torch.Tensor
         (N,): the voltage at step t, before the increment (the DEA's state: memory of the
         tip-contact model).
+    z_prev : torch.Tensor
+        (N, 2): the forces (Fx, Fy) at step t, before the increment (0 at a run's first point:
+        the FEM places the DEA without friction); with ``v_prev`` the memory of the
+        tip-memory model (``f-memory``), whose tip carries the friction force Fx between steps.
     """
 
     s: torch.Tensor
@@ -225,6 +229,7 @@ class Transitions:
     phi: Phi
     window: torch.Tensor
     v_prev: torch.Tensor
+    z_prev: torch.Tensor
 
     def __len__(self) -> int:
         return self.s.shape[0]
@@ -258,7 +263,8 @@ def transitions(setups: list[SetupData], window: int, phis: dict[str, Phi] | Non
         sa = np.concatenate([s[:-1], a], axis=1)
         padded = np.concatenate([np.repeat(sa[:1], window - 1, axis=0), sa], axis=0)
         win = np.lib.stride_tricks.sliding_window_view(padded, (window, 4))[:, 0]
-        parts.append((s[:-1], a, z, s[1:], win, data.V[:-1]))
-    s, a, z, s_next, win, v_prev = (torch.as_tensor(np.concatenate(c), dtype=dtype) for c in zip(*parts))
+        z_prev = np.stack([data.Fx[:-1], data.Fy[:-1]], axis=1)
+        parts.append((s[:-1], a, z, s[1:], win, data.V[:-1], z_prev))
+    s, a, z, s_next, win, v_prev, z_prev = (torch.as_tensor(np.concatenate(c), dtype=dtype) for c in zip(*parts))
     phi = Phi.rows(row_phis, [len(p[1]) for p in parts], dtype=dtype)
-    return Transitions(s, a, z, s_next, phi, win, v_prev)
+    return Transitions(s, a, z, s_next, phi, win, v_prev, z_prev)

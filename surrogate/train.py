@@ -134,16 +134,21 @@ def setup_record(data: SetupData, role: str, phi: Phi) -> dict:
             "v_threshold_V": vt if math.isfinite(vt) else None}
 
 
-def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData) -> TrainResult:
+def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData | list[SetupData],
+          phis: dict[str, Phi] | None = None) -> TrainResult:
     """Train one model on ``train_sets``, early-stopped on ``val_set`` (Algorithm 1).
 
     Parameters
     ----------
     config : TrainConfig
     train_sets : list of SetupData
-        Setups whose transitions fit the weights.
-    val_set : SetupData
-        Setup whose loss decides early stopping.
+        Runs whose transitions fit the weights (names unique: a setup, or ``<setup>_<protocol>``).
+    val_set : SetupData or list of SetupData
+        Run(s) whose loss (over all their transitions) decides early stopping.
+    phis : dict, optional
+        φ per run name, for runs whose coin the kind cannot read off the run itself (the
+        paper's V^T of a release run, which never moves toward −x: the coin's ramp run gives
+        it); default ``kind.phi_of(run)``.
 
     Returns
     -------
@@ -154,16 +159,19 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData) 
     torch.manual_seed(config.seed)
     shuffle = torch.Generator().manual_seed(config.seed)
     kind = KINDS[config.kind]
-    phis = {d.name: kind.phi_of(d) for d in [*train_sets, val_set]}
+    val_sets = list(val_set) if isinstance(val_set, (list, tuple)) else [val_set]
+    given = dict(phis or {})
+    phis = {d.name: given[d.name] if d.name in given else kind.phi_of(d) for d in [*train_sets, *val_sets]}
     setups = {d.name: setup_record(d, "train", phis[d.name]) for d in train_sets}
-    if val_set.name in setups:
-        setups[val_set.name]["role"] = "train+val"
-    else:
-        setups[val_set.name] = setup_record(val_set, "val", phis[val_set.name])
+    for v in val_sets:
+        if v.name in setups:
+            setups[v.name]["role"] = "train+val"
+        else:
+            setups[v.name] = setup_record(v, "val", phis[v.name])
     hparams = config.model_hparams(train_sets)
     window = hparams.get("window", 1)
     train_tr = transitions(train_sets, window, phis)
-    val_tr = transitions([val_set], window, phis).to(device)
+    val_tr = transitions(val_sets, window, phis).to(device)
     model = build(config.kind, Normalisation.from_transitions(train_tr),
                   InputRange.from_transitions(train_tr, config.range_tolerance), hparams)
     model.check_phi(train_tr.phi)
@@ -174,7 +182,8 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData) 
     result = TrainResult(model=model, config=config, setups=setups)
     best_state, waited = copy.deepcopy(model.state_dict()), 0
     log.info("training %s on %s (%d transitions), validating on %s, up to %d epochs on %s",
-             config.kind, ",".join(d.name for d in train_sets), len(train_tr), val_set.name, config.epochs, device)
+             config.kind, ",".join(d.name for d in train_sets), len(train_tr), ",".join(v.name for v in val_sets),
+             config.epochs, device)
     bar = tqdm(range(1, config.epochs + 1), desc=f"train {config.kind}", unit="epoch", leave=False, disable=None)
     for epoch in bar:
         train_loss = _epoch(model, optimiser, train_tr, config.batch_size, shuffle)

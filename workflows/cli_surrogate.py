@@ -1,4 +1,5 @@
-"""Sub-commands of the surrogate stage: ``train``, ``evaluate`` and ``experiments``.
+"""Sub-commands of the surrogate stage: ``train``, ``evaluate``, ``experiments`` and
+``experiments-protocols``.
 
 Each command function takes the parsed ``argparse.Namespace`` and returns an exit code;
 bad input raises :class:`deapull.errors.InputError` (a ``ValueError``), which the
@@ -73,9 +74,50 @@ def cmd_experiments(args) -> int:
     return 0
 
 
-def _training_args(p: argparse.ArgumentParser, epochs: int) -> None:
+def cmd_experiments_protocols(args) -> int:
+    from deapull.surrogate import experiments, protocol_experiments as pe
+    from deapull.surrogate.data import parse_setups
+    kinds = parse_setups(args.models) if args.models else list(pe.DEFAULT_KINDS)
+    design = pe.Design(train_coins=tuple(parse_setups(args.train_coins)), val_coins=tuple(parse_setups(args.val_coins)),
+                       test_coins=tuple(parse_setups(args.test_coins)) if args.test_coins else (),
+                       train_protocols=tuple(parse_setups(args.train_protocols)),
+                       test_protocols=tuple(parse_setups(args.test_protocols)))
+    rows = pe.run(args.data, args.out, _config(args, "f"), excitation_dir=args.excitation, kinds=kinds, design=design)
+    ramp_csv = Path(args.ramp_results) / "experiments.csv" if args.ramp_results else None
+    if ramp_csv is not None and ramp_csv.is_file():
+        import csv
+        with ramp_csv.open() as fh:
+            ramp_rows = [_typed(r) for r in csv.DictReader(fh)]
+        ramp_kinds = [k for k in dict.fromkeys(r["model"] for r in ramp_rows)]
+        print(f"Ramps, the paper's six sets ({ramp_csv}):")
+        print(experiments.per_set_table(ramp_rows, ramp_kinds))
+        print()
+    print("Held-out protocols and coins:")
+    print(pe.format_text(pe.summarise(rows, kinds), kinds))
+    print(f"wrote {args.out}/protocols.csv, protocols.md, protocols.json, protocols.png")
+    return 0
+
+
+def _typed(row: dict) -> dict:
+    """A row of experiments.csv with its numbers and booleans back."""
+    out = {}
+    for k, v in row.items():
+        if v in ("True", "False"):
+            out[k] = v == "True"
+        elif k in ("set",):
+            out[k] = int(v)
+        else:
+            try:
+                out[k] = float(v) if v != "" else None
+            except ValueError:
+                out[k] = v
+    return out
+
+
+def _training_args(p: argparse.ArgumentParser, epochs: int, patience: int = 100) -> None:
     p.add_argument("--epochs", type=int, default=epochs, help=f"most passes over the data (default {epochs})")
-    p.add_argument("--patience", type=int, default=100, help="early stopping: passes without improvement (100)")
+    p.add_argument("--patience", type=int, default=patience,
+                   help=f"early stopping: passes without improvement ({patience})")
     p.add_argument("--batch-size", type=int, default=256, help="transitions per Adam step (256)")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (1e-3)")
     p.add_argument("--seed", type=int, default=0, help="seed of weights and shuffling (0)")
@@ -113,3 +155,22 @@ def register(sub) -> None:
     p.add_argument("--sets", default="1,2,3,4,5,6", help="which sets to run (default 1,2,3,4,5,6)")
     _training_args(p, 1000)
     p.set_defaults(func=cmd_experiments)
+
+    p = sub.add_parser("experiments-protocols",
+                       help="train on ramps + excitation, test on held-out protocols and coins (docs/surrogate.md)")
+    p.add_argument("--data", required=True, help="folder with the ramps C1.nc .. C8.nc")
+    p.add_argument("--excitation", default=None,
+                   help="folder with <setup>_<protocol>.nc (deapull sweep --protocols excitation; default <data>/excitation)")
+    p.add_argument("--out", required=True, help="output folder (resumes: trained models and evaluations are reused)")
+    p.add_argument("--models", default="", help="comma-separated kinds (default f-memory,f-coulomb,f,nn,lstm)")
+    p.add_argument("--train-coins", default="C1", help="training coins (C1)")
+    p.add_argument("--val-coins", default="C3", help="validation coins, early stopping (C3)")
+    p.add_argument("--test-coins", default="C5,C7", help="held-out coins tested on every protocol (C5,C7)")
+    p.add_argument("--train-protocols", default="ramp,rhr,random1,random2",
+                   help="protocols trained on (ramp,rhr,random1,random2)")
+    p.add_argument("--test-protocols", default="release,triangle,random3",
+                   help="held-out protocols (release,triangle,random3)")
+    p.add_argument("--ramp-results", default=None,
+                   help="folder of a `deapull experiments` run: its per-set table is printed beside this one")
+    _training_args(p, 1000)
+    p.set_defaults(func=cmd_experiments_protocols)

@@ -5,6 +5,9 @@
 * ``f-coulomb`` — :class:`~deapull.surrogate.models.tip_contact.TipContactModel`, f = d∘m
   grounded in the FEM's contact mechanics (the tip's stroke and pressing force from m, two
   Coulomb contacts in d; φ = (m_c, μ_b, μ_t));
+* ``f-memory`` — :class:`~deapull.surrogate.models.memory.TipMemoryModel`, the tip-contact f
+  with the tip's memory (its compliance carries the friction between steps, so the friction
+  reverses when the voltage turns; Fy depends on it);
 * ``nn``, ``lstm`` — :mod:`~deapull.surrogate.models.black_box`, the black-box baselines.
 
 Every model takes and returns physical quantities (SI); the normalisation of the training
@@ -23,8 +26,9 @@ from deapull.surrogate.models.registry import KINDS, build, kind_class, register
 # the kinds (each registers itself on import)
 from deapull.surrogate.models.paper import PhysicsModel, paper_dynamics
 from deapull.surrogate.models.tip_contact import TipContactModel, regularised_slip, tip_coin_step
+from deapull.surrogate.models.memory import TipMemoryModel, tip_memory_step
 from deapull.surrogate.models.black_box import LSTMBaseline, NNBaseline
 
 __all__ = ["INPUTS", "INPUT_UNITS", "InputRange", "KINDS", "LSTMBaseline", "NNBaseline", "NativeKernel",
-           "Normalisation", "PhysicsModel", "Surrogate", "TipContactModel", "build", "kind_class", "mlp",
-           "paper_dynamics", "register", "regularised_slip", "tip_coin_step"]
+           "Normalisation", "PhysicsModel", "Surrogate", "TipContactModel", "TipMemoryModel", "build", "kind_class", "mlp",
+           "paper_dynamics", "register", "regularised_slip", "tip_coin_step", "tip_memory_step"]

@@ -230,11 +230,11 @@ def test_paper_model_is_differentiable_in_state_action_and_weights(sweep):
 def test_registry_builds_every_kind_and_rejects_unknown_ones(sweep):
     tr = transitions([sweep["C1"]], 1)
     norm, rng = Normalisation.from_transitions(tr), InputRange.from_transitions(tr)
-    assert list(KINDS) == ["f", "f-coulomb", "nn", "lstm"]
+    assert list(KINDS) == ["f", "f-coulomb", "f-memory", "nn", "lstm"]
     for kind, cls in KINDS.items():
         model = build(kind, norm, rng)
         assert type(model) is cls and model.kind == kind and cls.label
-    with pytest.raises(ValueError, match="unknown model kind 'gp'.*f, f-coulomb, nn, lstm"):
+    with pytest.raises(ValueError, match="unknown model kind 'gp'.*f, f-coulomb, f-memory, nn, lstm"):
         build("gp", norm, rng)
 
 

@@ -1,0 +1,341 @@
+"""Held-out protocols and held-out coins: train on ramps + excitation, test on what was not seen.
+
+The paper's sets (:mod:`deapull.surrogate.experiments`) test ramps only. A controller plays
+holds, decreases and turns, so here every model kind is trained once on the ramps and the
+*training protocols* (default: ramp–hold–ramp and two seeded random inputs) of the *training
+coins*, early-stopped on the same protocols of the *validation coins*, and rolled out
+(recursively, over the whole run, from the FEM's first state under the FEM's voltages) on
+
+* the ramps of every coin that was neither trained nor validated on (held-out coins),
+* the held-out protocols (default: release, triangle, random input 3) of every coin
+  with excitation data (held-out protocols; on the test coins also held-out coins),
+* the training protocols of the test coins (held-out coins),
+
+with the error of x in % of the run's travel (the largest |x| of the FEM run), as
+:func:`deapull.surrogate.evaluate.evaluate` computes it. Each physics model simulates the
+run's coin, φ from the coin's ramp run (for the paper's law its V^T: a release never moves
+the coin toward −x, so has none of its own).
+
+Runs: ramps ``<data>/<coin>.nc``, the rest ``<excitation>/<coin>_<protocol>.nc`` (``deapull
+sweep --protocols excitation``). Resumable: a model folder ``<out>/<kind>/`` that holds a
+trained model is loaded instead of trained again, and an evaluation ``<out>/<kind>/eval/
+<run>.json`` newer than its model and its data files is reused. Written: ``protocols.csv`` (one row per model and
+run), ``protocols.md`` (the summary by protocol and the per-run table), ``protocols.json`` and
+``protocols.png`` (x(t) on the test coin, FEM and models).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import warnings
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from deapull.errors import InputError
+from deapull.io import markdown_table, write_csv, write_json, write_text
+from deapull.surrogate import store
+from deapull.surrogate.data import DatasetError, SetupData, load_setup
+from deapull.surrogate.evaluate import evaluate
+from deapull.surrogate.models import KINDS
+from deapull.surrogate.rollout import OutOfRangeWarning
+from deapull.surrogate.train import TrainConfig, train
+
+log = logging.getLogger(__name__)
+
+#: the default model kinds, the new f first
+DEFAULT_KINDS = ("f-memory", "f-coulomb", "f", "nn", "lstm")
+#: protocol columns of the summary: column -> protocols pooled in it
+COLUMNS = {"ramp": ("ramp",), "rhr": ("rhr",), "release": ("release",), "triangle": ("triangle",),
+           "random": ("random1", "random2", "random3")}
+CSV_COLUMNS = ("model", "run", "coin", "protocol", "role", "x_error_pct_travel", "mae_x_m", "max_abs_x_error_m",
+               "final_x_error_m", "travel_m", "mae_Fx_N", "mae_Fy_N", "diverged", "steps", "rollout_ms",
+               "out_of_range_warnings")
+
+
+@dataclass(frozen=True)
+class Design:
+    """Which coins and protocols train, validate and test.
+
+    Attributes
+    ----------
+    train_coins, val_coins, test_coins : tuple of str
+        Setups (``C1`` ...). The validation coins' training protocols decide early stopping.
+    train_protocols : tuple of str
+        ``ramp`` and excitation protocols (``rhr``, ``random1`` ...) trained on.
+    test_protocols : tuple of str
+        Held-out excitation protocols, evaluated on every coin that has them.
+    ramp_coins : tuple of str
+        Coins whose ramps are evaluated (default: every ramp in the data folder not trained
+        or validated on).
+    """
+
+    train_coins: tuple = ("C1",)
+    val_coins: tuple = ("C3",)
+    test_coins: tuple = ("C5", "C7")
+    train_protocols: tuple = ("ramp", "rhr", "random1", "random2")
+    test_protocols: tuple = ("release", "triangle", "random3")
+    ramp_coins: tuple = ()
+
+    def check(self) -> None:
+        seen = set(self.train_coins) & (set(self.val_coins) | set(self.test_coins))
+        if seen or set(self.val_coins) & set(self.test_coins):
+            raise InputError(f"a coin is in two roles: train {self.train_coins}, val {self.val_coins}, "
+                             f"test {self.test_coins}")
+        if set(self.train_protocols) & set(self.test_protocols):
+            raise InputError(f"protocols {sorted(set(self.train_protocols) & set(self.test_protocols))} are both "
+                             "trained on and held out")
+        if not self.train_coins or not self.val_coins or not self.train_protocols:
+            raise InputError("need at least one training coin, one validation coin and one training protocol")
+
+
+def run_name(coin: str, protocol: str) -> str:
+    return coin if protocol == "ramp" else f"{coin}_{protocol}"
+
+
+def run_path(data_dir: Path, excitation_dir: Path, coin: str, protocol: str) -> Path:
+    return data_dir / f"{coin}.nc" if protocol == "ramp" else excitation_dir / f"{coin}_{protocol}.nc"
+
+
+def cases(design: Design, data_dir: Path, excitation_dir: Path) -> list[tuple[str, str, str]]:
+    """The evaluation runs as (coin, protocol, role), role ``held-out coin``, ``held-out
+    protocol`` or ``held-out coin and protocol``; runs whose file is missing are left out."""
+    trained = set(design.train_coins) | set(design.val_coins)
+    ramp_coins = design.ramp_coins or tuple(sorted((p.stem for p in data_dir.glob("C*.nc") if "_" not in p.stem),
+                                                   key=lambda n: (len(n), n)))
+    out = [(c, "ramp", "held-out coin") for c in ramp_coins if c not in trained]
+    coins = [*design.train_coins, *design.val_coins, *design.test_coins]
+    for coin in coins:
+        for protocol in (*design.train_protocols, *design.test_protocols):
+            if protocol == "ramp":
+                continue
+            held_coin, held_protocol = coin in design.test_coins, protocol in design.test_protocols
+            if not (held_coin or held_protocol):
+                continue
+            if not run_path(data_dir, excitation_dir, coin, protocol).is_file():
+                log.warning("no run %s: left out", run_path(data_dir, excitation_dir, coin, protocol))
+                continue
+            role = ("held-out coin and protocol" if held_coin and held_protocol
+                    else "held-out coin" if held_coin else "held-out protocol")
+            out.append((coin, protocol, role))
+    return out
+
+
+def _load(data_dir, excitation_dir, coin, protocol) -> SetupData:
+    return load_setup(run_path(data_dir, excitation_dir, coin, protocol))
+
+
+def _phi(kind: str, ramp: SetupData):
+    """φ of a coin for ``kind``, from the coin's ramp run (None for the black boxes)."""
+    cls = KINDS[kind]
+    return cls.phi_of(ramp) if cls.physics else None
+
+
+def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, excitation_dir: Path, out: Path):
+    """The model of ``kind`` under ``out/<kind>``: loaded when trained before, else trained."""
+    folder = out / kind
+    if (folder / "model.json").is_file() and (folder / "model.pt").is_file():
+        model, meta = store.load(folder)
+        log.info("%s: reusing the model in %s", kind, folder)
+        return model, meta.get("training", {})
+    train_runs = [_load(data_dir, excitation_dir, c, p) for c in design.train_coins for p in design.train_protocols]
+    val_runs = []
+    for c in design.val_coins:
+        for p in design.train_protocols:
+            path = run_path(data_dir, excitation_dir, c, p)
+            if p != "ramp" and not path.is_file():
+                log.warning("validation run %s is missing: validating without it", path)
+                continue
+            val_runs.append(_load(data_dir, excitation_dir, c, p))
+    ramps = {c: _load(data_dir, excitation_dir, c, "ramp") for c in (*design.train_coins, *design.val_coins)}
+    phis = {}
+    for c in ramps:
+        phi = _phi(kind, ramps[c])
+        if phi is not None:
+            phis.update({run_name(c, p): phi for p in design.train_protocols})
+    result = train(replace(base, kind=kind), train_runs, val_runs, phis=phis)
+    store.save(result.model, folder, {**result.summary(), "design": design.__dict__}, result.history)
+    return result.model, result.summary()
+
+
+def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_dir: Path, excitation_dir: Path,
+                  out: Path) -> dict:
+    """The row of one model on one run (reused from ``<out>/<kind>/eval/<run>.json`` when newer
+    than the model)."""
+    name = run_name(coin, protocol)
+    cache = out / kind / "eval" / f"{name}.json"
+    inputs = [out / kind / "model.pt", run_path(data_dir, excitation_dir, coin, protocol),
+              run_path(data_dir, excitation_dir, coin, "ramp")]
+    if cache.is_file() and all(f.is_file() and cache.stat().st_mtime >= f.stat().st_mtime for f in inputs):
+        return json.loads(cache.read_text())
+    data = _load(data_dir, excitation_dir, coin, protocol)
+    phi = _phi(kind, _load(data_dir, excitation_dir, coin, "ramp"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", OutOfRangeWarning)
+        ev = evaluate(model, data, phi=phi)
+    row = {**{k: ev.metrics.get(k) for k in CSV_COLUMNS}, "model": kind, "run": name, "coin": coin,
+           "protocol": protocol, "role": role, "out_of_range_warnings": len(caught),
+           "t": ev.t.tolist(), "x_fem": ev.x_fem.tolist(), "x_model": ev.x_model.tolist()}
+    write_json(cache, row)
+    return row
+
+
+def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, excitation_dir: str | Path | None = None,
+        kinds=DEFAULT_KINDS, design: Design = Design()) -> list[dict]:
+    """Train (or reuse) every kind, evaluate it on every held-out run, write the tables.
+
+    Returns
+    -------
+    list of dict
+        One row per (model, run), the keys of :data:`CSV_COLUMNS`.
+    """
+    design.check()
+    for kind in kinds:
+        if kind not in KINDS:
+            raise InputError(f"model {kind!r} is not a model; choose from {', '.join(KINDS)}")
+    data_dir = Path(data_dir)
+    excitation_dir = Path(excitation_dir) if excitation_dir else data_dir / "excitation"
+    for d in (data_dir, excitation_dir):
+        if not d.is_dir():
+            raise DatasetError(f"{d}: no such data folder")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = cases(design, data_dir, excitation_dir)
+    rows = []
+    for kind in kinds:
+        model, _ = train_or_load(kind, base, design, data_dir, excitation_dir, out)
+        for coin, protocol, role in todo:
+            rows.append(evaluate_case(model, kind, coin, protocol, role, data_dir, excitation_dir, out))
+    summary = summarise(rows, kinds)
+    text = format_markdown(summary, rows, kinds, design)
+    write_text(out / "protocols.md", text + "\n")
+    write_csv(out / "protocols.csv", rows, CSV_COLUMNS)
+    write_json(out / "protocols.json", {"rows": [{k: r.get(k) for k in CSV_COLUMNS} for r in rows],
+                                        "summary": summary, "design": design.__dict__, "kinds": list(kinds),
+                                        "data": str(data_dir), "excitation": str(excitation_dir),
+                                        "config": {k: v for k, v in vars(base).items() if k != "kind"}}, indent=2)
+    plot(rows, kinds, design, out / "protocols.png")
+    return rows
+
+
+def summarise(rows: list[dict], kinds) -> list[dict]:
+    """Per model: the mean and largest x error (% of travel) over the runs of each protocol
+    column (:data:`COLUMNS`); a diverged rollout counts as infinite in the largest and is
+    left out of the mean (and counted)."""
+    out = []
+    for kind in kinds:
+        rec = {"model": kind, "label": KINDS[kind].label}
+        for col, protocols in COLUMNS.items():
+            mine = [r for r in rows if r["model"] == kind and r["protocol"] in protocols]
+            ok = [r["x_error_pct_travel"] for r in mine if not r["diverged"]]
+            rec[f"{col}_mean"] = float(np.mean(ok)) if ok else None
+            rec[f"{col}_max"] = (math.inf if any(r["diverged"] for r in mine) else max(ok)) if mine else None
+            rec[f"{col}_n"] = len(mine)
+            rec[f"{col}_diverged"] = sum(bool(r["diverged"]) for r in mine)
+        out.append(rec)
+    return out
+
+
+def _mean_max(rec: dict, col: str) -> str:
+    m, x = rec.get(f"{col}_mean"), rec.get(f"{col}_max")
+    if rec.get(f"{col}_n", 0) == 0:
+        return "–"
+    mean = "–" if m is None else f"{m:.2f}"
+    top = "div." if x is not None and math.isinf(x) else ("–" if x is None else f"{x:.2f}")
+    return f"{mean} ({top})"
+
+
+def verdicts(summary: list[dict], kinds) -> list[str]:
+    """How far the goal is: f ≤ 2 % on every held-out protocol column, ahead of NN and LSTM."""
+    by = {r["model"]: r for r in summary}
+    lines = []
+    boxes = [k for k in kinds if not KINDS[k].physics]
+    for kind in (k for k in kinds if KINDS[k].physics):
+        rec = by[kind]
+        cols = [c for c in COLUMNS if rec.get(f"{c}_n")]
+        under = [c for c in cols if rec[f"{c}_mean"] is not None and rec[f"{c}_mean"] <= 2.0 and not rec[f"{c}_diverged"]]
+        ahead = [c for c in cols if rec[f"{c}_mean"] is not None and all(
+            by[b][f"{c}_mean"] is None or by[b][f"{c}_diverged"] or rec[f"{c}_mean"] < by[b][f"{c}_mean"]
+            for b in boxes)]
+        lines.append(f"{KINDS[kind].label}: mean <= 2 % on {len(under)}/{len(cols)} protocols"
+                     f"{' (' + ', '.join(c for c in cols if c not in under) + ' above)' if len(under) < len(cols) else ''}; "
+                     f"ahead of {' and '.join(KINDS[b].label for b in boxes) or 'no baseline'} on {len(ahead)}/{len(cols)}")
+    return lines
+
+
+def format_text(summary: list[dict], kinds) -> str:
+    """The summary as plain text: one line per model, mean (largest) x error per protocol."""
+    cols = [c for c in COLUMNS if any(r.get(f"{c}_n") for r in summary)]
+    head = ["x error [% of travel], mean (max)"] + cols
+    lines = [head] + [[r["label"]] + [_mean_max(r, c) for c in cols] for r in summary]
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    table = "\n".join("  ".join(c.ljust(w) if j == 0 else c.rjust(w) for j, (c, w) in enumerate(zip(line, widths)))
+                      for line in lines)
+    counts = "runs per column: " + ", ".join(f"{c} {summary[0][f'{c}_n']}" for c in cols)
+    return table + "\n" + counts + "\n" + "\n".join(verdicts(summary, kinds))
+
+
+def format_markdown(summary: list[dict], rows: list[dict], kinds, design: Design) -> str:
+    cols = [c for c in COLUMNS if any(r.get(f"{c}_n") for r in summary)]
+    table = markdown_table([{"label": r["label"], **{c: _mean_max(r, c) for c in cols}} for r in summary],
+                           [("model", "label", "s")] + [(c, c, "s") for c in cols])
+    runs = sorted({(r["run"], r["coin"], r["protocol"], r["role"]) for r in rows},
+                  key=lambda k: (list(COLUMNS).index(next(c for c, ps in COLUMNS.items() if k[2] in ps)), k[0]))
+    by = {(r["model"], r["run"]): r for r in rows}
+    per_run = []
+    for name, coin, protocol, role in runs:
+        rec = {"run": name, "role": role, "travel": by[(kinds[0], name)]["travel_m"] * 1e3}
+        for k in kinds:
+            r = by[(k, name)]
+            rec[k] = "div." if r["diverged"] else f"{r['x_error_pct_travel']:.2f}"
+        per_run.append(rec)
+    per_table = markdown_table(per_run, [("run", "run", "s"), ("held out", "role", "s"), ("travel mm", "travel", ".3f")]
+                               + [(KINDS[k].label, k, "s") for k in kinds])
+    return (f"# Held-out protocols and coins\n\nTrained on coins {', '.join(design.train_coins)} with protocols "
+            f"{', '.join(design.train_protocols)}; early-stopped on {', '.join(design.val_coins)}; test coins "
+            f"{', '.join(design.test_coins)}; held-out protocols {', '.join(design.test_protocols)}.\n\n"
+            "x error of the recursive rollout over the whole run, % of the run's travel: mean (largest) over the "
+            "runs of each protocol (random: random1–3 pooled).\n\n" + table + "\n\n"
+            + "\n".join(f"* {v}" for v in verdicts(summary, kinds)) + "\n\n## Per run\n\n" + per_table)
+
+
+def plot(rows: list[dict], kinds, design: Design, path: Path) -> Path | None:
+    """x(t) of the FEM and of each model, one run per protocol: the first test coin's, else the
+    first coin's that has it."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    coin = design.test_coins[0] if design.test_coins else design.train_coins[0]
+    mine = [r for r in rows if r["model"] == kinds[0]]
+    names = []
+    for protocol in dict.fromkeys(r["protocol"] for r in mine):
+        runs = [r for r in mine if r["protocol"] == protocol]
+        names.append(next((r for r in runs if r["coin"] == coin), runs[0])["run"])
+    if not names:
+        return None
+    by = {(r["model"], r["run"]): r for r in rows}
+    cols = min(3, len(names))
+    nrows = -(-len(names) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(4.2 * cols, 3.2 * nrows), squeeze=False)
+    for ax, name in zip(axes.flat, names):
+        r0 = by[(kinds[0], name)]
+        ax.plot(r0["t"], np.array(r0["x_fem"]) * 1e3, "k-", lw=2.5, alpha=0.4, label="FEM")
+        for j, k in enumerate(kinds):
+            r = by[(k, name)]
+            ax.plot(r["t"], np.array(r["x_model"]) * 1e3, color=f"C{j}", lw=1,
+                    label=KINDS[k].label + (" (diverged)" if r["diverged"] else ""))
+        lim = 1e3 * r0["travel_m"]
+        ax.set_ylim(-1.5 * lim, 1.5 * lim)
+        ax.set_title(f"{name} ({r0['role']})", fontsize=9)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("x (mm)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=6)
+    for ax in list(axes.flat)[len(names):]:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
