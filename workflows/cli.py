@@ -13,7 +13,7 @@ import sys
 
 from deapull import scene as scenes
 from deapull.errors import InputError
-from deapull.workflows import cli_control, cli_fem, cli_studies, cli_surrogate
+from deapull.workflows import cli_control, cli_fem, cli_report, cli_studies, cli_surrogate
 from deapull.workflows.args import add_scene_args, load_scene
 
 log = logging.getLogger("deapull")
@@ -102,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="PNG file")
     p.set_defaults(func=cmd_plot)
 
-    for module in (cli_fem, cli_studies, cli_surrogate, cli_control):   # each imports its stage lazily
+    for module in (cli_fem, cli_studies, cli_surrogate, cli_control, cli_report):   # each imports its stage lazily
         module.register(sub)
     return parser
 

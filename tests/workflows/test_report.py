@@ -1,0 +1,392 @@
+"""``deapull report``: the page builds from partial tiny outputs and names what is missing,
+its images are real, every link points at a row, and a real browser loads it cleanly."""
+import json
+import re
+import shutil
+import subprocess
+import sys
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deapull.io import write_csv
+from deapull.workflows import site, site_render
+from deapull.workflows.site_check import BrowserUnavailable, check_page, find_browser
+from tests.conftest import REPO, SWEEP
+
+ALL_STEPS = [s.name for s in site.STEPS]
+
+
+def _cli(*args, cwd=REPO):
+    return subprocess.run([sys.executable, "-m", "deapull.workflows", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=300)
+
+
+def _inputs(tmp_path, data) -> site.Inputs:
+    return site.Inputs.under(tmp_path / "out", data)
+
+
+def _sweep(tmp_path, setups) -> Path:
+    data = tmp_path / "data"
+    data.mkdir(exist_ok=True)
+    for s in setups:
+        shutil.copy(SWEEP / f"{s}.nc", data / f"{s}.nc")
+    return data
+
+
+class _Page(HTMLParser):
+    """ids, local hrefs, image sources and every external reference of an HTML page."""
+
+    def __init__(self):
+        super().__init__()
+        self.ids, self.hrefs, self.imgs, self.external = set(), [], [], []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if "id" in a:
+            self.ids.add(a["id"])
+        for key in ("href", "src"):
+            v = a.get(key)
+            if v and re.match(r"^[a-z]+:", v):
+                self.external.append(v)
+        if tag == "a" and a.get("href", "").startswith("#"):
+            self.hrefs.append(a["href"][1:])
+        if tag == "img":
+            self.imgs.append(a["src"])
+
+
+def _parse(index: Path) -> _Page:
+    page = _Page()
+    page.feed(index.read_text())
+    return page
+
+
+def _png_ok(path: Path) -> None:
+    from PIL import Image
+    assert path.is_file() and path.stat().st_size > 2000, path
+    with Image.open(path) as im:
+        w, h = im.size
+        assert w > 100 and h > 100
+        px = np.asarray(im.convert("L"), dtype=float)
+    assert px.std() > 5, f"{path}: a blank image"
+
+
+# --- partial outputs ---------------------------------------------------------------------
+
+def test_report_from_partial_outputs_names_what_is_missing(tmp_path):
+    data = _sweep(tmp_path, ["C1", "C2", "C3"])
+    out = tmp_path / "report"
+    summary = site.build(out, _inputs(tmp_path, data), progress=False)
+    assert summary["missing"] == ALL_STEPS          # 5 setups absent, and every study
+    md, html = (out / "report.md").read_text(), (out / "index.html").read_text()
+    for text in (md, html):
+        assert "C4, C5, C6, C7, C8" in text and "make sweep" in text
+        for step in site.STEPS:
+            assert step.make in text, step.make
+    # one block per missing output: sweep, fields, bench-fem, fidelity, stability, experiments,
+    # excitation + experiments-protocols, control, bench-control
+    assert md.count("**Missing:**") == 10 and html.count('class="missing"') == 10
+    # the sweep's rows: one per dataset found, with V^T and the cone prediction filled in
+    rows = re.findall(r'<tr id="sweep-(C\d)">(.*?)</tr>', html)
+    assert [r[0] for r in rows] == ["C1", "C2", "C3"]
+    for _, cells in rows:
+        values = re.findall(r"<td>(.*?)</td>", cells)
+        v_cone, v_t = float(values[9]), float(values[10])
+        assert 0 < v_cone <= v_t <= 400
+    _png_ok(out / "img" / "sweep.png")
+    page = _parse(out / "index.html")
+    assert page.imgs == ["img/sweep.png"]
+    assert not page.external
+    assert json.loads((out / "report.json").read_text())["missing"] == ALL_STEPS
+
+
+def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
+    data = _sweep(tmp_path, site.SETUPS)
+    inputs = _inputs(tmp_path, data)
+    _fake_studies(inputs)
+    out = tmp_path / "report"
+    summary = site.build(out, inputs, progress=False)
+    assert summary["missing"] == ["report-fields"]
+    html = (out / "index.html").read_text()
+    page = _parse(out / "index.html")
+    assert not page.external
+    dangling = [h for h in page.hrefs if h not in page.ids]
+    assert not dangling, dangling
+    claims = {c["what"]: c for c in summary["claims"]}
+    assert claims["MAE of x, f (paper's law) (Table II)"]["paper"] == "0.34 × 10⁻⁴ m"
+    assert claims["MAE of x, f (paper's law) (Table II)"]["ours"] == "0.5 × 10⁻⁴ m"
+    assert claims["MAE of x, f (paper's law) (Table II)"]["anchor"] == "#table2-mae_x_m"
+    assert "Iterations to target, mpc (surrogate:C2, noise 0.001 m)" in claims
+    assert claims["Iterations to target, mpc (surrogate:C2, noise 0.001 m)"]["ours"] == "median 151 (3/3 reached)"
+    row = re.search(r'<tr id="table2-mae_x_m">(.*?)</tr>', html).group(1)
+    assert re.findall(r"<td>(.*?)</td>", row) == ["x (10⁻⁴ m)", "0.5", "2", "0.34", "3.86", "9.86"]
+    for img in page.imgs:
+        assert (out / img).is_file() and (out / img).stat().st_size > 0, img
+    assert "img/control_position_surrogate_C2_noise0.001.png" in page.imgs
+    assert re.search(r'<tr id="stab-baseline">', html) and re.search(r'<tr id="fid-ref">', html)
+    assert "mpc.pytorch" in html
+    # provenance: every source file listed with its hash
+    for src in summary["sources"]:
+        assert src["anchor"] in page.ids and len(src["sha256"]) == 12
+
+
+def test_rebuild_drops_images_no_longer_shown(tmp_path):
+    data = _sweep(tmp_path, site.SETUPS)
+    inputs = _inputs(tmp_path, data)
+    _fake_studies(inputs)
+    out = tmp_path / "report"
+    site.build(out, inputs, progress=False)
+    assert (out / "img" / "fidelity_pareto.png").is_file()
+    shutil.rmtree(inputs.fidelity)
+    summary = site.build(out, inputs, progress=False)
+    assert not (out / "img" / "fidelity_pareto.png").exists() and "fidelity" in summary["missing"]
+
+
+def _png(path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(3, 2))
+    ax.plot([0, 1], [0, 1])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _fake_studies(inputs: site.Inputs) -> None:
+    """Tiny outputs of every study, in the formats their commands write."""
+    write_csv(inputs.fidelity / "fidelity.csv",
+              [dict(case="ref", kind="fem", status="ok", elements="hex Q2", dofs=900, steps=50, wall_s=9.0,
+                    mae_x_mm=0.0, error_pct=0.0, is_reference=True, is_default=False),
+               dict(case="default", kind="fem", status="ok", elements="hex Q2", dofs=300, steps=50, wall_s=2.0,
+                    mae_x_mm=0.01, error_pct=1.5, is_reference=False, is_default=True)],
+              ("case", "kind", "status", "elements", "dofs", "steps", "wall_s", "mae_x_mm", "error_pct",
+               "is_reference", "is_default"))
+    _png(inputs.fidelity / "fidelity_pareto.png")
+    inputs.stability.mkdir(parents=True)
+    (inputs.stability / "stability.md").write_text(
+        "# FEM stability\n\nBase: `coin_pull` C3. git 0123456789ab, dolfinx 0.5.2.\n\n"
+        "| case | converged | outcome |\n|---|---|---|\n| baseline | yes | converged |\n"
+        "| pullin | no | failed: DIVERGED_MAX_IT |\n\n* `pullin`: detected at V = 478 V.\n")
+    (inputs.stability / "stability.csv").write_text("case\nbaseline\npullin\n")
+    rows = [dict(set=i, train=f"C{i}", val=f"C{i + 1}", test=f"C{i + 2}", model=m, mae_x_m=e, mae_Fx_N=1e-4,
+                 mae_Fy_N=2e-4, x_error_pct_travel=3.0, rollout_ms=40.0, diverged=False)
+            for i in (1, 2) for m, e in (("f", 0.5e-4), ("nn", 2e-4))]
+    write_csv(inputs.experiments / "experiments.csv", rows, list(rows[0]))
+    (inputs.experiments / "experiments.json").write_text(json.dumps(
+        {"rows": rows, "paper": site.PAPER_TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
+    for name in ("x_error_boxplot.png", "rollouts.png"):
+        _png(inputs.experiments / name)
+    episodes = [dict(policy=p, plant=f"surrogate:C{c}", noise_std_m=n, episode=k, reached=True,
+                     iterations_to_target=it + k, ms_per_iteration=0.5, inferred_mass_kg=1.4e-3 if p == "mpc" else "",
+                     true_mass_kg=1.36e-3)
+                for p, it in (("mpc", 150), ("pd", 1500)) for c in (1, 2) for n in (0.0, 1e-3) for k in range(3)]
+    write_csv(inputs.control / "control.csv", episodes, list(episodes[0]))
+    (inputs.control / "run.json").write_text(json.dumps({"git_commit": "fedcba9876543210"}))
+    (inputs.control / "table.md").write_text("| policy | reached |\n|---|---|\n| mpc | 3/3 |\n| pd | 3/3 |\n")
+    for noise in ("0", "0.001"):
+        _png(inputs.control / f"position_surrogate_C2_noise{noise}.png")
+    inputs.bench_fem.mkdir(parents=True)
+    (inputs.bench_fem / "bench_fem.json").write_text(json.dumps(
+        {"shipped default": {"wall_s": 10.0, "points": 722, "dofs": 1587, "newton_its": 4500, "travel_mm": 1.326,
+                             "travel_err": 0.016, "x_mae": 0.01},
+         "sweep": {"wall_s": 70.0, "np": 2},
+         "reference": {"label": "a finer run", "travel_ref_m": 1.305e-3}}))
+    inputs.protocols.mkdir(parents=True)
+    (inputs.protocols / "protocols.md").write_text(
+        "# Held-out protocols\n\n| model | ramp | triangle |\n|---|---|---|\n| f (tip memory) | 0.06 | 0.16 |\n"
+        "| NN | 7.74 | 5.36 |\n")
+    _png(inputs.protocols / "protocols.png")
+    inputs.bench_control.mkdir(parents=True)
+    (inputs.bench_control / "bench_control.json").write_text(json.dumps(
+        {"rows": [{"solver": "ours", "median_ms": 30.0, "median_ms_per_iteration": 1.5, "mean_cost": 0.01},
+                  {"solver": "mpc.pytorch", "median_ms": 900.0, "median_ms_per_iteration": 45.0, "mean_cost": 0.01}],
+         "horizon": 20, "iterations": 20, "paper_s": 1.2, "mpc_pytorch_skipped": ""}))
+
+
+# --- pictures from field output ----------------------------------------------------------------
+
+def _box_hex27(nx, ny, nz, size=(0.04, 0.003, 0.02), origin=(-0.04, 0.00625, -0.01)):
+    """A box of nx × ny × nz 27-node hexahedra: node coordinates and cells (nodes shuffled per cell)."""
+    shape = (2 * nx + 1, 2 * ny + 1, 2 * nz + 1)
+    axes = [np.linspace(o, o + s, n) for o, s, n in zip(origin, size, shape)]
+    X = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    ids = np.arange(len(X)).reshape(shape)
+    rng = np.random.default_rng(0)
+    cells = [rng.permutation(ids[2 * i:2 * i + 3, 2 * j:2 * j + 3, 2 * k:2 * k + 3].ravel())
+             for i in range(nx) for j in range(ny) for k in range(nz)]
+    return X, np.array(cells)
+
+
+def _write_fields(folder: Path, times, nx=4) -> Path:
+    """An XDMF + HDF5 field file laid out as dolfinx 0.5 writes it, the DEA bending down over time."""
+    import h5py
+    X, cells = _box_hex27(nx, 2, 2)
+    keys = [f"{t:.17g}".replace(".", "_") for t in times]
+    with h5py.File(folder / "C3_fields.h5", "w") as f:
+        f["Mesh/mesh/geometry"] = X
+        f["Mesh/mesh/topology"] = cells
+        for t, key in zip(times, keys):
+            s = (X[:, 0] / -0.04) ** 2               # 0 at the clamp, 1 at the tip
+            f[f"Function/displacement/{key}"] = np.column_stack([-1e-3 * t * s, -4e-3 * s - 3e-3 * t * s, 0 * s])
+    grids = "".join(
+        f'<Grid Name="displacement" GridType="Uniform"><xi:include xpointer="x"/><Time Value="{t!r}"/>'
+        f'<Attribute Name="displacement" AttributeType="Vector" Center="Node"><DataItem Dimensions="{len(X)} 3" '
+        f'Format="HDF">C3_fields.h5:/Function/displacement/{key}</DataItem></Attribute></Grid>'
+        for t, key in zip(times, keys))
+    xdmf = folder / "C3_fields.xdmf"
+    xdmf.write_text(
+        '<?xml version="1.0"?><Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude"><Domain>'
+        f'<Grid Name="mesh" GridType="Uniform"><Topology TopologyType="Hexahedron_27" NumberOfElements="{len(cells)}" '
+        f'NodesPerElement="27"><DataItem Dimensions="{len(cells)} 27" NumberType="Int" Format="HDF">'
+        'C3_fields.h5:/Mesh/mesh/topology</DataItem></Topology><Geometry GeometryType="XYZ">'
+        f'<DataItem Dimensions="{len(X)} 3" Format="HDF">C3_fields.h5:/Mesh/mesh/geometry</DataItem></Geometry></Grid>'
+        f'<Grid Name="displacement" GridType="Collection" CollectionType="Temporal">{grids}</Grid></Domain></Xdmf>')
+    shutil.copy(SWEEP / "C3.nc", folder / "C3.nc")      # the run: x(t), stick, the scene (coin)
+    return xdmf
+
+
+def test_boundary_faces_of_a_hex27_box():
+    X, cells = _box_hex27(3, 2, 1)
+    polys = site_render.boundary_faces(X, cells, "Hexahedron_27")
+    # each element face on the boundary split in 4 quads
+    assert len(polys) == 4 * 2 * (3 * 2 + 2 * 1 + 3 * 1)
+    on_boundary = np.isclose(X, X.min(0)) | np.isclose(X, X.max(0))
+    assert all(on_boundary[list(p)].all(axis=0).any() for p in polys)   # every quad lies in one box face
+
+
+def test_half_model_is_mirrored_to_the_whole_box():
+    X, cells = _box_hex27(2, 1, 1, size=(0.04, 0.003, 0.01), origin=(-0.04, 0.00625, 0.0))
+    points, polys = site_render.mirror_z(X, site_render.boundary_faces(X, cells, "Hexahedron_27"))
+    full, full_cells = _box_hex27(2, 1, 2)
+    assert len(polys) == len(site_render.boundary_faces(full, full_cells, "Hexahedron_27")) == 64
+    assert np.allclose(points[:, 2].min(), -0.01) and not any(np.allclose(points[list(p), 2], 0.0) for p in polys)
+
+
+def test_pictures_and_animation_from_field_output(tmp_path):
+    fields = tmp_path / "out" / "report_fields"
+    fields.mkdir(parents=True)
+    _write_fields(fields, np.linspace(0, 1, 9))
+    out = tmp_path / "report"
+    summary = site.build(out, _inputs(tmp_path, _sweep(tmp_path, ["C3"])), frames=5, progress=False)
+    assert "report-fields" not in summary["missing"]
+    for stage in ("rest", "static", "kinetic"):
+        _png_ok(out / "img" / f"dea_{stage}.png")
+    from PIL import Image
+    with Image.open(out / "img" / "dea_C3.gif") as gif:
+        assert gif.n_frames == 5 and gif.size[0] > 100
+    a, b = (np.asarray(Image.open(out / "img" / f"dea_{s}.png").convert("L"), float) for s in ("rest", "kinetic"))
+    assert np.abs(a - b).mean() > 1.0                  # the DEA moved between the stages
+    # the synthetic tip sinks to y = -0.75 mm at t = 1: the page says so
+    assert "reach y = -0.75 mm, below the ground" in (out / "report.md").read_text()
+    page = _parse(out / "index.html")
+    assert {"img/dea_rest.png", "img/dea_static.png", "img/dea_kinetic.png", "img/dea_C3.gif"} <= set(page.imgs)
+
+
+def test_stages_pick_the_frame_before_sliding(tmp_path):
+    _write_fields(tmp_path, np.linspace(0, 1, 11))
+    s3 = site_render.load_scene3d(tmp_path / "C3_fields.xdmf")
+    stages = site_render.stage_frames(s3)
+    t_slip = s3.run_t[int(np.argmax(s3.stick == 0))]
+    assert stages["rest"] == 0 and stages["kinetic"] == 10
+    assert s3.fields.times[stages["static"]] < t_slip <= s3.fields.times[stages["static"] + 1]
+
+
+def test_broken_field_file_is_an_input_error(tmp_path):
+    (tmp_path / "C3_fields.xdmf").write_text("<Xdmf><Domain>")
+    with pytest.raises(site.InputError, match="not valid XML"):
+        site_render.read_fields(tmp_path / "C3_fields.xdmf")
+
+
+# --- the command ---------------------------------------------------------------------------
+
+def _main(*args):
+    from deapull.workflows.cli import main
+    return main(list(args))
+
+
+def test_missing_steps_lists_make_targets(tmp_path, capsys):
+    assert _main("report", "--outputs", str(tmp_path / "out"), "--data", str(tmp_path / "none"),
+                 "--missing-steps") == 0
+    assert capsys.readouterr().out.split() == ALL_STEPS
+    _main("report", "--outputs", str(tmp_path / "out"), "--data", str(SWEEP), "--missing-steps")
+    assert capsys.readouterr().out.split() == ALL_STEPS[1:]
+
+
+def test_cli_builds_the_page(tmp_path):
+    proc = _cli("report", "--out", str(tmp_path / "r"), "--outputs", str(tmp_path / "out"), "--data",
+                str(_sweep(tmp_path, ["C1"])), "--no-progress", "--check", "no")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "wrote" in proc.stdout and "missing: the 8 FEM datasets" in proc.stdout
+    assert (tmp_path / "r" / "index.html").is_file() and (tmp_path / "r" / "report.md").is_file()
+
+
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
+    common = ("--outputs", str(tmp_path / "out"), "--no-progress", "--check", "no")
+    assert _main("report", "--out", str(tmp_path / "r"), "--frames", "1", *common) == 2
+    assert "--frames 1: need at least 2" in capsys.readouterr().err
+    (tmp_path / "file").write_text("x")
+    assert _main("report", "--out", str(tmp_path / "file"), *common) == 2
+    assert "exists and is not a folder" in capsys.readouterr().err
+
+
+# --- the browser ----------------------------------------------------------------------------
+
+needs_browser = pytest.mark.skipif(find_browser() is None, reason="no chromium + playwright installed")
+
+
+@needs_browser
+def test_page_loads_cleanly_in_chromium(tmp_path):
+    data = _sweep(tmp_path, site.SETUPS)
+    inputs = _inputs(tmp_path, data)
+    _fake_studies(inputs)
+    inputs.fields.parent.mkdir(parents=True)
+    _write_fields(inputs.fields.parent, np.linspace(0, 1, 5))
+    summary = site.build(tmp_path / "report", inputs, frames=3, progress=False)
+    assert summary["missing"] == []
+    result = check_page(summary["index"])
+    assert result.ok, result.summary()
+    assert result.images == len(_parse(Path(summary["index"])).imgs) >= 8
+    assert result.tables >= 10 and not result.empty_tables
+
+
+@needs_browser
+def test_browser_check_catches_broken_images_errors_and_empty_tables(tmp_path):
+    page = tmp_path / "index.html"
+    page.write_text('<!DOCTYPE html><html><body><img src="img/none.png"><table><caption>t</caption><thead><tr>'
+                    "<th>a</th></tr></thead><tbody></tbody></table><script>console.error('boom')</script>"
+                    "</body></html>")
+    result = check_page(page)
+    assert not result.ok
+    assert result.broken_images == ["img/none.png"] and result.empty_tables == ["t"]
+    assert any("boom" in m for m in result.console_errors)
+
+
+def test_check_without_browser_says_so(tmp_path):
+    page = tmp_path / "index.html"
+    page.write_text("<html></html>")
+    with pytest.raises(BrowserUnavailable, match="apt-get install chromium"):
+        check_page(page, browser=str(tmp_path / "no-such-browser"))
+
+
+# --- the real solver's field output ----------------------------------------------------------
+
+@pytest.mark.fem
+@pytest.mark.slow
+def test_pictures_from_a_real_solve(tmp_path):
+    """The solver's own XDMF (tiny mesh, short ramp) renders: the format is what we read."""
+    tiny = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004", "load.end_time_s=0.1",
+            "load.ramp_time_s=0.1", "time.dt_max_s=0.02", "time.dt_initial_s=0.02", "load.voltage_max_V=200")
+    folder = tmp_path / "out" / "report_fields"
+    proc = _cli("solve", "--scene", "coin_pull", "--setup", "C3", "--out", str(folder), "--fields-every", "2",
+                *[a for o in tiny for a in ("--set", o)])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    s3 = site_render.load_scene3d(folder / "C3_fields.xdmf")
+    assert len(s3.fields.times) >= 3 and s3.umax_mm > 0.1
+    # coin_pull is a half model (z >= 0, 4 x 1 x (1 + 1) hexahedra) drawn mirrored: the outer faces
+    # of a 4 x 2 x 2 block, each drawn as 4 sub-faces, the mid-plane dropped
+    assert s3.mirrored and len(s3.polys) == 4 * 2 * (4 * 2 + 4 * 2 + 2 * 2)
+    png = site_render.stage_picture(s3, "kinetic", len(s3.fields.times) - 1, tmp_path / "k.png")
+    _png_ok(png)
