@@ -28,12 +28,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import hashlib
 import logging
-import os
-import platform
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -41,43 +36,20 @@ import torch
 
 from deapull.control import mpc
 from deapull.control.task import U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics
-from deapull.io import atomic_write
 from deapull.surrogate import native as surrogate_native
 
 log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("native_mpc.c")
-FLAGS = surrogate_native.FLAGS
 _D = ctypes.POINTER(ctypes.c_double)
-
-
-def _cache_dir() -> Path:
-    if os.environ.get("DEAPULL_CACHE_DIR"):
-        return Path(os.environ["DEAPULL_CACHE_DIR"])
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "deapull"
 
 
 @functools.lru_cache(maxsize=1)
 def library() -> ctypes.CDLL | None:
     """The compiled solver (compiled now if needed), or None where it cannot be had."""
-    if os.environ.get("DEAPULL_NATIVE", "1") == "0":
+    lib = surrogate_native.compiled(SOURCE, "native_mpc", "the MPC uses the slower torch path")
+    if lib is None:
         return None
-    compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if compiler is None or not SOURCE.is_file():
-        log.warning("no C compiler (or %s missing): the MPC uses the slower torch path", SOURCE.name)
-        return None
-    key = hashlib.sha256("\0".join([SOURCE.read_text(), compiler, *FLAGS, platform.machine(),
-                                    platform.node()]).encode()).hexdigest()[:16]
-    target = _cache_dir() / f"native_mpc_{key}.so"
-    if not target.is_file():
-        try:
-            atomic_write(target, lambda tmp: subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", tmp, "-lm"],
-                                                            check=True, capture_output=True, text=True, timeout=120))
-        except (OSError, subprocess.CalledProcessError) as err:
-            log.warning("compiling %s failed (%s): the MPC uses the slower torch path", SOURCE.name,
-                        getattr(err, "stderr", "") or err)
-            return None
-    lib = ctypes.CDLL(str(target))
     common = [_D, ctypes.c_int, _D, _D, _D]
     lib.deapull_coin_step.argtypes = common + [ctypes.c_int, _D, _D, _D, _D, _D]
     lib.deapull_coin_rollout.argtypes = common + [ctypes.c_int, ctypes.c_int, _D, _D, _D]

@@ -42,33 +42,35 @@ def _cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "deapull"
 
 
-@functools.lru_cache(maxsize=1)
-def library() -> ctypes.CDLL | None:
-    """The compiled kernels (compiled now if needed), or None where they cannot be had."""
+def compiled(source: Path, stem: str, fallback: str) -> ctypes.CDLL | None:
+    """``source`` compiled with :data:`FLAGS` into the cache (once per source, compiler and
+    machine) and loaded, or None — with ``DEAPULL_NATIVE=0``, without a C compiler or when
+    the compiler fails; ``fallback`` says in the log what is used instead. Shared by every
+    C kernel of the project (this module's rollouts, the MPC's ``control/native.py``)."""
     if os.environ.get("DEAPULL_NATIVE", "1") == "0":
-        log.info("native rollouts disabled by DEAPULL_NATIVE=0; using torch")
+        log.info("%s disabled by DEAPULL_NATIVE=0; %s", source.name, fallback)
         return None
     compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if compiler is None or not SOURCE.is_file():
-        log.warning("no C compiler (or %s missing): rollouts use the slower torch engine", SOURCE.name)
+    if compiler is None or not source.is_file():
+        log.warning("no C compiler (or %s missing): %s", source.name, fallback)
         return None
-    key = hashlib.sha256("\0".join([SOURCE.read_text(), compiler, *FLAGS, platform.machine(),
+    key = hashlib.sha256("\0".join([source.read_text(), compiler, *FLAGS, platform.machine(),
                                     platform.node()]).encode()).hexdigest()[:16]
-    target = _cache_dir() / f"native_rollout_{key}.so"
+    target = _cache_dir() / f"{stem}_{key}.so"
     if not target.is_file():
         try:
-            _compile(compiler, target)
+            atomic_write(target, lambda tmp: subprocess.run([compiler, *FLAGS, str(source), "-o", tmp, "-lm"],
+                                                            check=True, capture_output=True, text=True, timeout=120))
         except (OSError, subprocess.CalledProcessError) as err:
-            detail = getattr(err, "stderr", "") or err
-            log.warning("compiling %s failed (%s): rollouts use the slower torch engine", SOURCE.name, detail)
+            log.warning("compiling %s failed (%s): %s", source.name, getattr(err, "stderr", "") or err, fallback)
             return None
     return ctypes.CDLL(str(target))
 
 
-def _compile(compiler: str, target: Path) -> None:
-    atomic_write(target, lambda tmp: subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", tmp, "-lm"], check=True,
-                                                    capture_output=True, text=True, timeout=120))
-    log.info("compiled %s -> %s", SOURCE.name, target)
+@functools.lru_cache(maxsize=1)
+def library() -> ctypes.CDLL | None:
+    """The compiled kernels (compiled now if needed), or None where they cannot be had."""
+    return compiled(SOURCE, "native_rollout", "rollouts use the slower torch engine")
 
 
 def supports(model) -> bool:
