@@ -48,10 +48,10 @@ import math
 
 import torch
 
-from deapull.errors import InputError
-from deapull.surrogate.data import Transitions, require_tip_contact
-from deapull.surrogate.models.base import InputRange, Normalisation, Surrogate, mlp
+from deapull.surrogate.data import Transitions
+from deapull.surrogate.models.base import InputRange, Normalisation, Surrogate
 from deapull.surrogate.models.registry import register
+from deapull.surrogate.models.tip_contact import TipFriction
 from deapull.surrogate.phi import Phi
 
 #: scale of the tip's tangential compliance (m/N): the shipped DEA's tip has k ≈ 210 N/m
@@ -186,7 +186,7 @@ def tip_memory_step_scalar(u, P, X_next, c, fy0, b, mu_t, mu_b, mass_kg, dt, g: 
 
 
 @register
-class TipMemoryModel(Surrogate):
+class TipMemoryModel(TipFriction, Surrogate):
     """The tip-contact f with the tip's memory: compliance, friction reversal, Fy(V, T)
     (kind ``f-memory``; see the module docstring).
 
@@ -205,34 +205,10 @@ class TipMemoryModel(Surrogate):
     kind = "f-memory"
     label = "f (tip memory)"
     physics = True
-    phi_fields = ("mass_kg", "mu_b", "mu_t")
 
     def __init__(self, norm: Normalisation, input_range: InputRange, hidden: int = 128, layers: int = 3,
                  gravity_m_s2: float = 9.8, slip_rate_reg_m_s: float = 1e-4, iterations: int = 60):
-        if not slip_rate_reg_m_s > 0:
-            raise ValueError(f"slip_rate_reg_m_s must be positive, got {slip_rate_reg_m_s}")
-        hparams = {"hidden": hidden, "layers": layers, "gravity_m_s2": gravity_m_s2,
-                   "slip_rate_reg_m_s": slip_rate_reg_m_s, "iterations": iterations}
-        super().__init__(norm, input_range, hparams)
-        self.material = mlp(1, hidden, layers, 4)
-        self.gravity_m_s2, self.slip_rate_reg_m_s, self.iterations = gravity_m_s2, slip_rate_reg_m_s, iterations
-
-    @classmethod
-    def phi_of(cls, data) -> Phi:
-        """m_c, μ_b and μ_t of ``data``'s coin; refuses a dataset without μ_t or ε_v."""
-        require_tip_contact(data)
-        return Phi.of(data)
-
-    @classmethod
-    def training_hparams(cls, config, train_sets: list) -> dict:
-        for d in train_sets:
-            require_tip_contact(d)
-        eps = {d.slip_rate_reg_m_s for d in train_sets}
-        if len(eps) != 1:
-            raise InputError(f"training setups were made with different friction regularisations {sorted(eps)} m/s; "
-                             "f-memory needs one")
-        return {"hidden": config.hidden, "layers": config.layers, "gravity_m_s2": train_sets[0].gravity_m_s2,
-                "slip_rate_reg_m_s": eps.pop()}
+        self._init_tip(norm, input_range, 4, hidden, layers, gravity_m_s2, slip_rate_reg_m_s, iterations)
 
     def material_response(self, V: torch.Tensor):
         """m: (X(V) (m, X(0) = 0), Fy₀(V) (N), c(V) (m/N), b(V)) at the voltages ``V``."""

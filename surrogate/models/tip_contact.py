@@ -108,8 +108,43 @@ def material_from_pieces(pieces: dict, V: torch.Tensor) -> tuple[torch.Tensor, t
     return pieces["stroke_scale"] * (out[..., 0] - rest), pieces["fy_mean"] + pieces["fy_scale"] * out[..., 1]
 
 
+class TipFriction:
+    """What the tip-contact kinds share (``f-coulomb`` here, ``f-memory`` in memory.py): φ =
+    (m_c, μ_b, μ_t) read from datasets that carry μ_t and ε_v, one ε_v over the training
+    setups, and a material network m of the voltage alone. Listed before
+    :class:`~deapull.surrogate.models.base.Surrogate` in the bases."""
+
+    phi_fields = ("mass_kg", "mu_b", "mu_t")
+
+    def _init_tip(self, norm, input_range, outputs: int, hidden, layers, gravity_m_s2, slip_rate_reg_m_s, iterations):
+        if not slip_rate_reg_m_s > 0:
+            raise ValueError(f"slip_rate_reg_m_s must be positive, got {slip_rate_reg_m_s}")
+        hparams = {"hidden": hidden, "layers": layers, "gravity_m_s2": gravity_m_s2,
+                   "slip_rate_reg_m_s": slip_rate_reg_m_s, "iterations": iterations}
+        Surrogate.__init__(self, norm, input_range, hparams)
+        self.material = mlp(1, hidden, layers, outputs)
+        self.gravity_m_s2, self.slip_rate_reg_m_s, self.iterations = gravity_m_s2, slip_rate_reg_m_s, iterations
+
+    @classmethod
+    def phi_of(cls, data) -> Phi:
+        """m_c, μ_b and μ_t of ``data``'s coin; refuses a dataset without μ_t or ε_v."""
+        require_tip_contact(data)
+        return Phi.of(data)
+
+    @classmethod
+    def training_hparams(cls, config, train_sets: list) -> dict:
+        for d in train_sets:
+            require_tip_contact(d)
+        eps = {d.slip_rate_reg_m_s for d in train_sets}
+        if len(eps) != 1:
+            raise InputError(f"training setups were made with different friction regularisations {sorted(eps)} m/s; "
+                             f"{cls.kind} needs one")
+        return {"hidden": config.hidden, "layers": config.layers, "gravity_m_s2": train_sets[0].gravity_m_s2,
+                "slip_rate_reg_m_s": eps.pop()}
+
+
 @register
-class TipContactModel(Surrogate):
+class TipContactModel(TipFriction, Surrogate):
     """f = d∘m grounded in the FEM's contact mechanics (kind ``f-coulomb``).
 
     m (θ): an MLP 1 → ``layers``×``hidden`` ReLU → 2 of the voltage alone gives the DEA's
@@ -141,34 +176,10 @@ class TipContactModel(Surrogate):
     kind = "f-coulomb"
     label = "f (tip contact)"
     physics = True
-    phi_fields = ("mass_kg", "mu_b", "mu_t")
 
     def __init__(self, norm: Normalisation, input_range: InputRange, hidden: int = 128, layers: int = 3,
                  gravity_m_s2: float = 9.8, slip_rate_reg_m_s: float = 1e-4, iterations: int = 40):
-        if not slip_rate_reg_m_s > 0:
-            raise ValueError(f"slip_rate_reg_m_s must be positive, got {slip_rate_reg_m_s}")
-        hparams = {"hidden": hidden, "layers": layers, "gravity_m_s2": gravity_m_s2,
-                   "slip_rate_reg_m_s": slip_rate_reg_m_s, "iterations": iterations}
-        super().__init__(norm, input_range, hparams)
-        self.material = mlp(1, hidden, layers, 2)
-        self.gravity_m_s2, self.slip_rate_reg_m_s, self.iterations = gravity_m_s2, slip_rate_reg_m_s, iterations
-
-    @classmethod
-    def phi_of(cls, data) -> Phi:
-        """m_c, μ_b and μ_t of ``data``'s coin; refuses a dataset without μ_t or ε_v."""
-        require_tip_contact(data)
-        return Phi.of(data)
-
-    @classmethod
-    def training_hparams(cls, config, train_sets: list) -> dict:
-        for d in train_sets:
-            require_tip_contact(d)
-        eps = {d.slip_rate_reg_m_s for d in train_sets}
-        if len(eps) != 1:
-            raise InputError(f"training setups were made with different friction regularisations {sorted(eps)} m/s; "
-                             "f-coulomb needs one")
-        return {"hidden": config.hidden, "layers": config.layers, "gravity_m_s2": train_sets[0].gravity_m_s2,
-                "slip_rate_reg_m_s": eps.pop()}
+        self._init_tip(norm, input_range, 2, hidden, layers, gravity_m_s2, slip_rate_reg_m_s, iterations)
 
     def material_response(self, V: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """m: the tip's stroke X(V) (m, X(0) = 0) and pressing force Fy(V) (N)."""
