@@ -65,6 +65,47 @@ static inline double slope_den(double y, double eps)
     return q * sqrt(q);
 }
 
+/* The coin's velocity v' at the end of a step (tip_coin_step): the root of
+ *   r(v) = c (v − u) − cap_t reg(w − v) + sign cap_b
+ * by Newton safeguarded with bisection in [lo, hi], then one more Newton correction.
+ * Returns the corrected v'; *root is v' before the correction and *slope r'(root). */
+typedef struct { double v, root, slope, sign; int stuck; } CoinRoot;
+
+static CoinRoot coin_root(double c, double u, double w, double cap_t, double cap_b, double eps, int iterations)
+{
+    CoinRoot R;
+    double tip_rest = cap_t * reg(w, eps);
+    double ground = tip_rest + c * u;
+    R.stuck = fabs(ground) <= cap_b;
+    double sign = ground > 0.0 ? 1.0 : -1.0;
+    double reach = (cap_t + cap_b) / c;
+    double lo = (sign > 0.0 || R.stuck) ? 0.0 : fmin(u - reach, 0.0);
+    double hi = (sign < 0.0 || R.stuck) ? 0.0 : fmax(u + reach, 0.0);
+    double ratio = sign * cap_b / fmax(cap_t, 1e-300);
+    ratio = fmin(fmax(ratio, -0.999999), 0.999999);
+    double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi);
+    double change = hi - lo;
+#define RESIDUAL(v_) (c * ((v_) - u) - cap_t * reg(w - (v_), eps) + sign * cap_b)
+#define SLOPE(v_) (c + cap_t * eps * eps / slope_den(w - (v_), eps))
+    for (int it = 0; it < iterations; it++) {
+        double r = RESIDUAL(v);
+        if (r < 0.0) lo = v; else hi = v;
+        double s = r / SLOPE(v);
+        int bisect = (v - s < lo) || (v - s > hi) || (2.0 * fabs(s) > fabs(change));
+        double previous = v;
+        v = bisect ? 0.5 * (lo + hi) : v - s;
+        change = v - previous;
+        if (fabs(change) <= 1e-13 * (fabs(v) + eps)) break;
+    }
+    R.slope = SLOPE(v);
+    R.root = v;
+    R.v = v - RESIDUAL(v) / R.slope;
+    R.sign = sign;
+#undef RESIDUAL
+#undef SLOPE
+    return R;
+}
+
 /* One step ξ' = f(ξ, ν) in scaled units; A (3×3, row-major) = ∂ξ'/∂ξ and Bv (3) = ∂ξ'/∂ν
  * when A is not NULL. */
 static void step(const Model *M, const double *xi, double nu, double *out, double *A, double *Bv)
@@ -84,36 +125,12 @@ static void step(const Model *M, const double *xi, double nu, double *out, doubl
     double cap_t = M->mu_t * fyc, cap_b = M->mu_b * normal;
     /* tip_coin_step */
     double c = M->mass / dt;
-    double tip_rest = cap_t * reg(w, eps);
-    double ground = tip_rest + c * u;
-    int stuck = fabs(ground) <= cap_b;
-    double sign = ground > 0.0 ? 1.0 : -1.0;
-    double reach = (cap_t + cap_b) / c;
-    double lo = (sign > 0.0 || stuck) ? 0.0 : fmin(u - reach, 0.0);
-    double hi = (sign < 0.0 || stuck) ? 0.0 : fmax(u + reach, 0.0);
-    double ratio = sign * cap_b / fmax(cap_t, 1e-300);
-    ratio = fmin(fmax(ratio, -0.999999), 0.999999);
-    double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi);
-    double change = hi - lo;
-#define RESIDUAL(v_) (c * ((v_) - u) - cap_t * reg(w - (v_), eps) + sign * cap_b)
-#define SLOPE(v_) (c + cap_t * eps * eps / slope_den(w - (v_), eps))
-    for (int it = 0; it < M->iterations; it++) {
-        double r = RESIDUAL(v);
-        if (r < 0.0) lo = v; else hi = v;
-        double s = r / SLOPE(v);
-        int bisect = (v - s < lo) || (v - s > hi) || (2.0 * fabs(s) > fabs(change));
-        double previous = v;
-        v = bisect ? 0.5 * (lo + hi) : v - s;
-        change = v - previous;
-        if (fabs(change) <= 1e-13 * (fabs(v) + eps)) break;
-    }
-    double sl = SLOPE(v);
-    double y = w - v, q = y * y + eps * eps;
+    CoinRoot root = coin_root(c, u, w, cap_t, cap_b, eps, M->iterations);
+    int stuck = root.stuck;
+    double sign = root.sign, sl = root.slope, v = root.v;
+    double y = w - root.root, q = y * y + eps * eps;
     double g = eps * eps / (q * sqrt(q));
     double regy = reg(y, eps);
-    v = v - RESIDUAL(v) / sl;
-#undef RESIDUAL
-#undef SLOPE
     double un = stuck ? 0.0 : v;
     out[0] = (x + dt * un) / M->xu;
     out[1] = un / M->uu;
@@ -375,32 +392,9 @@ int deapull_coin_predict(int n, const double *x, const double *u, const double *
         double cap_t = mu_t * fyc, cap_b = mu_b * normal;
         double c = mass / dt;
         double tip_rest = cap_t * reg(w, eps);
-        double ground = tip_rest + c * ui;
-        int stuck = fabs(ground) <= cap_b;
-        double sign = ground > 0.0 ? 1.0 : -1.0;
-        double reach = (cap_t + cap_b) / c;
-        double lo = (sign > 0.0 || stuck) ? 0.0 : fmin(ui - reach, 0.0);
-        double hi = (sign < 0.0 || stuck) ? 0.0 : fmax(ui + reach, 0.0);
-        double ratio = sign * cap_b / fmax(cap_t, 1e-300);
-        ratio = fmin(fmax(ratio, -0.999999), 0.999999);
-        double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi);
-        double change = hi - lo;
-#define RESIDUAL(v_) (c * ((v_) - ui) - cap_t * reg(w - (v_), eps) + sign * cap_b)
-#define SLOPE(v_) (c + cap_t * eps * eps / slope_den(w - (v_), eps))
-        for (int it = 0; it < iterations; it++) {
-            double r = RESIDUAL(v);
-            if (r < 0.0) lo = v; else hi = v;
-            double s = r / SLOPE(v);
-            int bisect = (v - s < lo) || (v - s > hi) || (2.0 * fabs(s) > fabs(change));
-            double previous = v;
-            v = bisect ? 0.5 * (lo + hi) : v - s;
-            change = v - previous;
-            if (fabs(change) <= 1e-13 * (fabs(v) + eps)) break;
-        }
-        double sl = SLOPE(v), v0 = v, regy = reg(w - v0, eps);
-        v = v - RESIDUAL(v) / sl;
-#undef RESIDUAL
-#undef SLOPE
+        CoinRoot root = coin_root(c, ui, w, cap_t, cap_b, eps, iterations);
+        int stuck = root.stuck;
+        double sign = root.sign, sl = root.slope, v0 = root.root, v = root.v, regy = reg(w - v0, eps);
         double un = stuck ? 0.0 : v;
         pred[i] = x[i] + dt * un;
         /* the stick shortfall */
