@@ -101,6 +101,7 @@ class DEAProblem:
         self.symmetry_factor = 2.0 if scene.mesh.symmetry == "half_z" else 1.0
         self._tip_measure(qd)
         self._facet_tags = facet_tags
+        self._contact_points = None     # (points, cells) of the contact quadrature, on first use
         self._build_forms(cell_tags, facet_tags)
         self._build_snes()
 
@@ -209,6 +210,16 @@ class DEAProblem:
         self.snes = snes
         self._jacobian_ready, self._last_fnorm = False, 0.0
         self.jacobian_assemblies = self.jacobian_reuses = 0
+
+    def set_line_search(self, kind: str) -> None:
+        """The line search of the Newton solves: ``basic`` (full steps, the default) or a PETSc
+        type such as ``bt`` (backtracking). Set through this SNES's own options prefix, which
+        is cleared again (this petsc4py has no SNESLineSearch object)."""
+        key = self.snes.getOptionsPrefix() + "snes_linesearch_type"
+        opts = PETSc.Options()
+        opts[key] = kind
+        self.snes.setFromOptions()
+        del opts[key]
 
     def factor_package(self) -> str:
         """``solver.linear_solver``, or mumps when the mesh is split over ranks and the
@@ -350,7 +361,7 @@ class DEAProblem:
         if self.contact is None:
             return 0.0
         lay = self.layout
-        if getattr(self, "_contact_points", None) is None:
+        if self._contact_points is None:
             facets = compat.facets_with_tag(self._facet_tags, groups.DEA_CONTACT)
             sc = self.scene.contact
             self._contact_points = compat.facet_quadrature_points(self.mesh, facets, sc.quadrature_degree,

@@ -373,11 +373,8 @@ class Stepper:
         return ok, reason, its + k_its, cits + k_cits, coin, forces
 
     def _set_line_search(self, kind: str) -> None:
-        """The SNES line search of the problem's Newton (``basic``: full steps, the problem's own)."""
-        from petsc4py import PETSc
-        snes = self.p.snes
-        PETSc.Options()[(snes.getOptionsPrefix() or "") + "snes_linesearch_type"] = kind
-        snes.setFromOptions()
+        """The line search of the problem's Newton (``basic``: full steps, the problem's own)."""
+        self.p.set_line_search(kind)
         self.line_search = kind
 
     def _predictor_ratio(self, step: float, dV: float) -> float:
