@@ -47,6 +47,13 @@ KINDS = ("f-coulomb", "f")
 OPTIMIZERS = ("adam", "lm")
 #: the box each field is kept in while inferred (SI units): wide, only to stay finite
 BOUNDS = {"mass_kg": (1e-8, 1.0), "mu_b": (1e-3, 10.0), "mu_t": (1e-3, 10.0), "v_threshold_V": (1.0, 1e4)}
+#: a stated log-normal prior over the design card's coin family (field: (median, std of log)):
+#: coins of the scenes' geometry at ρ 7.7–7.8 g/cm³ weigh 1.36–1.38 g, μ_b 0.20–0.25,
+#: μ_t 0.50–0.55; each widened to a factor 2 at one standard deviation (log std ln 2).
+#: ``InferenceConfig(prior=COIN_PRIOR)`` (``deapull control --phi-prior coins``) makes the
+#: inference a MAP estimate that stays physical where the data do not inform (noise, model
+#: mismatch); the paper's Algorithm 2 has none (the default).
+COIN_PRIOR = {"mass_kg": (1.37e-3, math.log(2.0)), "mu_b": (0.22, math.log(2.0)), "mu_t": (0.52, math.log(2.0))}
 
 
 @dataclass(frozen=True)
@@ -76,6 +83,20 @@ class InferenceConfig:
     motion_threshold_m : float
         A transition whose observed position changes by more than this counts as moving
         (for the hinge); raise it to a few noise stds under observation noise.
+    prior : dict or None
+        A log-normal prior per field, ``{field: (median, std of log φ)}`` (e.g.
+        :data:`COIN_PRIOR`); None: maximum likelihood (the paper). With a prior each update
+        minimises eq. 9 plus ``w² Σ ((log φ − log median)/std)²``, ``w² = (n/N) σ̂²/s²``:
+        the batch of n stands for the buffer's N transitions, and σ̂, the std of one
+        transition's residual, is the larger of ``observation_std_m`` and the batch's RMS
+        residual at the current φ (the model's misfit, estimated as in weighted least
+        squares with unknown variance). So the prior weighs like one transition of the
+        current misfit per field: it decides where the data do not (noise, stuck
+        transitions, a model that cannot fit the plant) and hardly moves an estimate the
+        data determine.
+    observation_std_m : float
+        The smallest σ̂ (m): the observation noise's std (the MPC passes the env's); the
+        default 1 nm only keeps w > 0 on noise-free data.
     engine : {"auto", "native", "torch"}
         Where the Levenberg–Marquardt step evaluates the residuals and their Jacobian:
         ``native`` in C (:func:`deapull.control.native.coin_predict`, f-coulomb; the same
@@ -97,6 +118,8 @@ class InferenceConfig:
     damping: float = 1e-3
     max_log_step: float = 0.5
     wait_for_motion: bool = True
+    prior: dict | None = None
+    observation_std_m: float = 1e-9
     engine: str = "auto"
 
     def __post_init__(self):
@@ -108,6 +131,13 @@ class InferenceConfig:
             raise InputError(f"inference optimizer {self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
         if self.engine not in ("auto", "native", "torch"):
             raise InputError(f"inference engine {self.engine!r}: choose one of auto, native, torch")
+        for f, spec in (self.prior or {}).items():
+            if f not in BOUNDS:
+                raise InputError(f"inference prior: unknown field {f!r}; choose from {', '.join(BOUNDS)}")
+            if len(spec) != 2 or not spec[0] > 0 or not spec[1] > 0:
+                raise InputError(f"inference prior of {f!r}: {spec!r}; expected (median > 0, std of log > 0)")
+        if not self.observation_std_m > 0:
+            raise InputError(f"inference observation_std_m {self.observation_std_m} must be > 0")
         if self.capacity is not None and self.capacity < 1:
             raise InputError(f"inference capacity {self.capacity} must be at least 1 (or None)")
 
@@ -302,9 +332,34 @@ class OnlineInference:
         index = torch.randint(n, (size,), generator=self.generator) if n > size else torch.arange(n)
         return self.buffer.batch(index)
 
+    def _prior_weight(self, data_residuals: torch.Tensor) -> float:
+        """w of the prior term (``InferenceConfig.prior``), from the batch's residuals at the
+        current φ (in units of ``residual_scale_m``); held fixed through one update."""
+        cfg = self.config
+        n, N = data_residuals.shape[0], max(len(self.buffer), 1)
+        rms = float(data_residuals.detach().pow(2).mean().sqrt()) if n else 0.0
+        return math.sqrt(n / N) * max(cfg.observation_std_m / cfg.residual_scale_m, rms)
+
+    def _prior_rows(self, log_values: torch.Tensor, weight: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """The prior's residuals w (log φ − log median)/std of the inferred fields that have
+        a prior, and their Jacobian with respect to ``log_values`` (rows × p)."""
+        prior, p = self.config.prior or {}, len(self.fields)
+        index = [i for i, f in enumerate(self.fields) if f in prior]
+        centre = torch.tensor([math.log(prior[self.fields[i]][0]) for i in index], dtype=torch.float64)
+        std = torch.tensor([prior[self.fields[i]][1] for i in index], dtype=torch.float64)
+        r = weight * (log_values[index] - centre) / std
+        J = torch.zeros(len(index), p, dtype=torch.float64)
+        J[range(len(index)), index] = weight / std
+        return r, J
+
     def _adam_step(self, columns, target) -> float:
         self.optimizer.zero_grad()
         loss = self.loss(columns, target, self._phi(detach=False))
+        if self.config.prior:
+            with torch.no_grad():
+                data = (self.predictor.predict(columns, self.phi) - target) / self.config.residual_scale_m
+            log_values = torch.stack([self.log_phi[f] for f in self.fields])
+            loss = loss + (self._prior_rows(log_values, self._prior_weight(data))[0] ** 2).sum() / target.shape[0]
         loss.backward()
         self.optimizer.step()
         with torch.no_grad():
@@ -336,6 +391,12 @@ class OnlineInference:
                 J = torch.cat([torch.autograd.grad(block.sum(), rows, retain_graph=True)[0]
                                for block in r.split(n)])
             r = r.detach()
+        prior_loss = None
+        if self.config.prior:
+            weight = self._prior_weight(r[:n])
+            rp, Jp = self._prior_rows(current, weight)
+            r, J = torch.cat([r, rp]), torch.cat([J, Jp])
+            prior_loss = lambda values: float((self._prior_rows(values, weight)[0] ** 2).sum()) / n  # noqa: E731
         loss = float((r ** 2).sum()) / n
         H, g = J.T @ J, J.T @ r
         scale = torch.diag(torch.diagonal(H)) + 1e-12 * torch.eye(p, dtype=H.dtype)
@@ -349,6 +410,8 @@ class OnlineInference:
                 new = float((self._native_residuals(columns, target, trial, jacobian=False)[0] ** 2).sum()) / n
             else:
                 new = float(self.loss(columns, target, self._phi_rows(trial.expand(n, p))))
+            if prior_loss is not None:
+                new += prior_loss(trial)
             if new < loss:
                 self.damping = max(self.damping / 3, 1e-9)
                 with torch.no_grad():

@@ -222,7 +222,9 @@ class MPCPolicy(Policy):
             self.kalman = ModelKalman(noise, cfg.process_std_m, cfg.process_fraction)
         if cfg.infer:
             # a transition counts as moving (stick hinge) only beyond 3 noise stds
-            settings = replace(cfg.inference, motion_threshold_m=max(cfg.inference.motion_threshold_m, 3 * noise))
+            # and the prior's smallest residual std is the noise's
+            settings = replace(cfg.inference, motion_threshold_m=max(cfg.inference.motion_threshold_m, 3 * noise),
+                               observation_std_m=max(cfg.inference.observation_std_m, noise))
             if self.inference is None or self.inference.dt != self.dt or self.inference.config != settings:
                 self.inference = OnlineInference(self.model, settings, self.dt)
             self.inference.reset()

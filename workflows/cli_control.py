@@ -21,7 +21,7 @@ def cmd_control(args) -> int:
         out=Path(args.out), episodes=args.episodes, seed=args.seed, dv_max_V=args.dv_max,
         max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm, data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
-        mpc_oracle=args.mpc_oracle, sac_dir=args.sac_dir, sac_steps=args.sac_steps,
+        mpc_oracle=args.mpc_oracle, phi_prior=args.phi_prior, sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress)
     import torch
     torch.set_num_threads(args.threads)
@@ -62,6 +62,10 @@ def register(sub) -> None:
                    help="the MPC's cost: scaled (default) or paper (1e-3 V^2 beside (x - x^T)^2 in SI)")
     p.add_argument("--mpc-oracle", action="store_true",
                    help="the MPC plans with the plant's true coin instead of inferring it online")
+    p.add_argument("--phi-prior", default="none",
+                   help="the MPC's online inference: none (maximum likelihood, the paper's Algorithm 2; default) "
+                        "or coins (MAP with a log-normal prior over the design card's coin family, a factor 2 "
+                        "wide: control.inference.COIN_PRIOR)")
     p.add_argument("--sac-dir", default="out/models/sac{n}",
                    help="trained SAC policy folder; trained there on the surrogate plant when absent "
                         "(default out/models/sac{n})")

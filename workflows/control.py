@@ -40,6 +40,8 @@ from deapull.io import atomic_write, markdown_table, write_csv, write_json, writ
 
 POLICIES = ("mpc", "sac", "pd", "heur", "mpc+kf", "pd+kf")
 PLANT_KINDS = ("surrogate", "fem")
+#: the choices of `--phi-prior`: maximum likelihood (the paper) or control.inference.COIN_PRIOR
+PHI_PRIORS = ("none", "coins")
 #: the paper's results (§VI-B): iterations to target and time per iteration
 PAPER = {"mpc": ("≤ 200", 1200.0), "sac": ("~10,000", 5.0), "pd": ("~1,500", 1.0), "heur": ("~500", None)}
 #: φ fields reported (true and inferred)
@@ -94,6 +96,7 @@ class ControlConfig:
     mpc_model: str = "out/models/fa"
     mpc_cost: str = "scaled"
     mpc_oracle: bool = False
+    phi_prior: str = "none"
     sac_dir: str = "out/models/sac{n}"
     sac_steps: int = 30000
     scene: str = "coin_pull"
@@ -175,6 +178,8 @@ def check(config: ControlConfig) -> None:
         from deapull.control.task import COSTS
         if config.mpc_cost not in COSTS:
             raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
+        if config.phi_prior not in PHI_PRIORS:
+            raise InputError(f"--phi-prior {config.phi_prior!r}: choose one of {', '.join(PHI_PRIORS)}")
         _require_model(Path(config.mpc_model), "--mpc-model")
 
 
@@ -248,7 +253,10 @@ def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
     from deapull.control.task import MPCConfig, MPCPolicy
     from deapull.surrogate import store
     model, _ = store.load(config.mpc_model)
-    settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle, filter=filter)
+    from deapull.control.inference import COIN_PRIOR, InferenceConfig
+    prior = {"none": None, "coins": COIN_PRIOR}[config.phi_prior]
+    settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle, filter=filter,
+                         inference=InferenceConfig(optimizer="lm", prior=prior))
     return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
 
 

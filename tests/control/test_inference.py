@@ -151,3 +151,49 @@ def test_bad_settings_are_refused(coulomb):
         OnlineInference(coulomb, InferenceConfig(fields=("v_threshold_V",)))
     with pytest.raises(InputError, match="lr"):
         InferenceConfig(lr=0.0)
+    with pytest.raises(InputError, match="prior: unknown field 'mass'"):
+        InferenceConfig(prior={"mass": (1e-3, 0.7)})
+    with pytest.raises(InputError, match=r"prior of 'mu_b'.*median > 0, std of log > 0"):
+        InferenceConfig(prior={"mu_b": (0.2, 0.0)})
+
+
+def noisy(observations, std: float, seed: int = 0) -> list:
+    g = torch.Generator().manual_seed(seed)
+    return [(x + std * float(torch.randn((), generator=g, dtype=torch.float64)), V) for x, V in observations]
+
+
+def test_a_prior_leaves_an_estimate_the_data_determine_alone(coulomb, observations):
+    """Noise-free observations determine φ; a prior 1.5× off the truth in every field moves the
+    MAP estimate by < 1 % (its weight follows the misfit, which vanishes at the truth)."""
+    off = {f: (1.5 * TRUTH.value(f), math.log(2.0)) for f in ("mass_kg", "mu_b", "mu_t")}
+    inf = run(coulomb, observations, InferenceConfig(optimizer="lm", prior=off), extra_updates=100)
+    errors = relative_errors(inf)
+    assert max(errors.values()) < 1e-2, errors
+
+
+def test_a_prior_keeps_the_estimate_physical_where_the_data_do_not_inform(coulomb, observations):
+    """At 10 µm of noise maximum likelihood wanders off to a bound (CRLB > 100 %,
+    docs/control.md); with the coin-family prior every field stays within a factor 6 (2.6 of
+    its stds) of its median. (Not closer: the noisy velocities favour a coin without inertia,
+    a bias of the inputs that no prior of this width removes.)"""
+    from deapull.control.inference import COIN_PRIOR
+    obs, std = noisy(observations, 1e-5), 1e-5
+    settings = dict(optimizer="lm", motion_threshold_m=3 * std)
+    ml = run(coulomb, obs, InferenceConfig(**settings), extra_updates=100).estimate()
+    ratio = {f: max(ml[f] / COIN_PRIOR[f][0], COIN_PRIOR[f][0] / ml[f]) for f in COIN_PRIOR}
+    assert max(ratio.values()) > 15, ratio          # the situation the prior is for (μ_t at its bound)
+    map_ = run(coulomb, obs, InferenceConfig(prior=COIN_PRIOR, observation_std_m=std, **settings),
+               extra_updates=100).estimate()
+    ratio = {f: max(map_[f] / COIN_PRIOR[f][0], COIN_PRIOR[f][0] / map_[f]) for f in COIN_PRIOR}
+    assert max(ratio.values()) < 6, ratio
+
+
+def test_adam_takes_the_prior_too(coulomb, observations):
+    """The paper's optimiser with a prior: a narrow one (std of log 0.01) draws Adam's μ_b, μ_t
+    to the prior's medians and m_c up from the paper's start far faster than eq. 9 alone
+    (Adam still crawls: docs/control.md)."""
+    narrow = {f: (TRUTH.value(f) * 1.2, 0.01) for f in ("mass_kg", "mu_b", "mu_t")}
+    est = run(coulomb, observations, InferenceConfig(optimizer="adam", prior=narrow), extra_updates=400).estimate()
+    plain = run(coulomb, observations, InferenceConfig(optimizer="adam"), extra_updates=400).estimate()
+    assert all(abs(est[f] / narrow[f][0] - 1) < 0.05 for f in ("mu_b", "mu_t")), est
+    assert est["mass_kg"] > 10 * plain["mass_kg"], (est, plain)
