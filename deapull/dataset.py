@@ -115,15 +115,17 @@ def write(ds, path: str | os.PathLike) -> Path:
     return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine=ENGINE))
 
 
-def is_complete(path: str | os.PathLike) -> bool:
-    """True when ``path`` is a readable dataset marked complete with the required variables."""
+def is_complete(path: str | os.PathLike, scene_toml: str | None = None) -> bool:
+    """True when ``path`` is a readable dataset marked complete with the required variables
+    (and, given ``scene_toml``, made with that resolved scene: its ``scene_toml`` attribute)."""
     import xarray as xr
     path = Path(path)
     if not path.is_file():
         return False
     try:
         with xr.open_dataset(path, engine=ENGINE) as ds:
-            return int(ds.attrs.get("complete", 0)) == 1 and all(v in ds for v in REQUIRED)
+            complete = int(ds.attrs.get("complete", 0)) == 1 and all(v in ds for v in REQUIRED)
+            return complete and (scene_toml is None or ds.attrs.get("scene_toml") == scene_toml)
     except (OSError, ValueError):
         return False
 

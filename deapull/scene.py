@@ -116,7 +116,7 @@ class Stop:
 @dataclass(frozen=True)
 class Contact:
     penalty_scale: float = _pos(10.0, "normal penalty = penalty_scale * E / h_cell (N/m^3)")
-    slip_rate_regularisation_m_s: float = _pos(1e-4, "slip rate at which regularised Coulomb friction "
+    slip_rate_regularisation_m_s: float = _pos(1e-5, "slip rate at which regularised Coulomb friction "
                                                       "reaches ~70 % of mu*p")
     quadrature_degree: int = _num(4, lo=0, integer=True, doc="quadrature degree of the contact and friction "
                                   "integrals on the DEA's underside (own measure, independent of "
@@ -161,6 +161,9 @@ class Time:
     growth: float = _num(1.5, lo=1.0, lo_open=False, doc="step growth factor after an easy solve")
     cutback: float = _num(0.5, lo=0.0, hi=1.0, hi_open=True, doc="step factor after a failed solve")
     max_cutbacks: int = _num(10, lo=0, lo_open=False, integer=True, doc="cut-backs allowed in one step")
+    placement_first_step: float = _num(0.25, lo=0.0, hi=1.0, lo_open=True, hi_open=False,
+                                       doc="first step of the gravity continuation that places the DEA on its "
+                                           "obstacle at t = 0 (fraction of g; grows x1.5, cut /4 on failure)")
 
 
 @dataclass(frozen=True)

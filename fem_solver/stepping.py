@@ -407,12 +407,13 @@ class Stepper:
         return True, reason
 
     def _continuation(self, what: str, solve_at, V: float):
-        """Solve ``solve_at(scale)`` for scale 0 → 1 in growing steps, cut by 4 on failure.
+        """Solve ``solve_at(scale)`` for scale 0 → 1 in growing steps (the first
+        ``time.placement_first_step``), cut by 4 on failure.
 
         Returns (Newton iterations, coupling iterations of the last solve, its forces);
         raises :class:`SolveFailed` once a step falls below :data:`PLACEMENT_MIN_STEP`.
         """
-        its, done, step = 0, 0.0, 1.0
+        its, done, step = 0, 0.0, self.scene.time.placement_first_step
         good = self.p.w.x.array.copy()
         while done < 1.0:
             scale = min(1.0, done + step)

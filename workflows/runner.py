@@ -81,21 +81,31 @@ def result_path(out_dir: Path, name: str) -> Path:
     return Path(out_dir) / "cases" / f"{name}.json"
 
 
-def load_result(out_dir: Path, case: Case) -> dict | None:
-    """The stored result of ``case``, or None when absent, unreadable or made for other inputs."""
+def scene_digest(scene) -> str:
+    """A short digest of a resolved scene (its TOML): a stored result is reused only for the
+    same scene, so a changed scene file or default re-solves the case instead of resuming."""
+    import hashlib
+    return hashlib.sha256(scene.to_toml().encode()).hexdigest()[:16]
+
+
+def load_result(out_dir: Path, case: Case, scene=None) -> dict | None:
+    """The stored result of ``case``, or None when absent, unreadable or made for other inputs
+    (other scene, setup or overrides; given the resolved ``scene``, another resolved scene)."""
     path = result_path(out_dir, case.name)
     try:
         result = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
     same = (result.get("scene") == case.scene and result.get("setup") == (case.setup or "")
-            and result.get("overrides") == list(case.overrides))
+            and result.get("overrides") == list(case.overrides)
+            and (scene is None or result.get("scene_digest") == scene_digest(scene)))
     return result if same else None
 
 
-def base_result(case: Case) -> dict:
+def base_result(case: Case, scene=None) -> dict:
+    digest = {} if scene is None else {"scene_digest": scene_digest(scene)}
     return {"case": case.name, "description": case.description, "scene": case.scene, "setup": case.setup or "",
-            "overrides": list(case.overrides), **case.meta}
+            "overrides": list(case.overrides), **digest, **case.meta}
 
 
 # --- what a solved case reports ------------------------------------------------------------
@@ -210,7 +220,7 @@ Solver = Callable[[Case, object, Path, object, bool], dict]
 
 
 def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases",
-              solve: Solver = solve_case, is_done: Callable[[Case], bool] | None = None) -> list[dict]:
+              solve: Solver = solve_case, is_done: Callable[[Case, object], bool] | None = None) -> list[dict]:
     """Run a study's cases over rank groups; every rank returns the results in case order.
 
     Parameters
@@ -227,8 +237,9 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
         ``solve(case, scene, out_dir, group_comm, progress) -> dict`` (default
         :func:`solve_case`: the dataset under ``<out>/cases/<name>/``).
     is_done : callable, optional
-        ``is_done(case) -> bool``: a case to skip although it has no stored result (the
-        sweep: a complete dataset). The stored result of such a case, if any, is returned.
+        ``is_done(case, scene) -> bool``: a case to skip although it has no stored result
+        (the sweep: a complete dataset made with the resolved ``scene``). The stored result
+        of such a case, if any, is returned.
     """
     out_dir = Path(out_dir)
     names = [c.name for c in cases]
@@ -239,7 +250,8 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
     resolved, rejected = resolve_cases(cases)
 
     def done(case):
-        return load_result(out_dir, case) is not None or (is_done is not None and is_done(case))
+        scene = resolved.get(case.name)
+        return load_result(out_dir, case, scene) is not None or (is_done is not None and is_done(case, scene))
 
     if comm.rank == 0:
         for case in cases:
@@ -253,11 +265,15 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
     if comm.rank == 0:
         log.info("%s: %d cases, %d already done, %d to run on %d group(s) of %d rank(s) -> %s", desc, len(cases),
                  len(cases) - len(todo), len(todo), n_groups, ranks_per_case, out_dir)
+        stale = [c.name for c in todo if result_path(out_dir, c.name).is_file()]
+        if stale:
+            log.info("%s: solving again %s: stored for another resolved scene (a changed scene file or default)",
+                     desc, ", ".join(stale))
     bar = tqdm(total=len(cases), initial=len(cases) - len(todo), desc=desc, unit="case", disable=comm.rank != 0)
     for case in todo[color::n_groups]:
         result = solve(case, resolved[case.name], out_dir, group, comm.rank == 0)
         if group.rank == 0:
-            write_json(result_path(out_dir, case.name), {**base_result(case), **result})
+            write_json(result_path(out_dir, case.name), {**base_result(case, resolved[case.name]), **result})
         if comm.rank == 0:
             bar.n = sum(done(c) for c in cases)
             bar.refresh()

@@ -69,8 +69,9 @@ def sweep(scene_name, setups, out_dir, comm, ranks_per_setup: int = 1, overrides
     def solve(case, scene, out, group, progress):
         return solve_case(case, scene, out, group, progress, run_dir=out, name=case.name)
 
-    def complete(case):
-        return dataset.is_complete(out_dir / f"{case.name}.nc")
+    def complete(case, scene):
+        # a dataset made with another resolved scene (a changed scene file or default) is redone
+        return scene is not None and dataset.is_complete(out_dir / f"{case.name}.nc", scene.to_toml())
 
     if ranks_per_setup < 1 or comm.size % ranks_per_setup:
         raise InputError(f"--ranks-per-setup {ranks_per_setup}: must divide the number of ranks ({comm.size})")

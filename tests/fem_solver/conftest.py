@@ -12,9 +12,12 @@ from tests.conftest import DATA
 #: the test-size C3 scene of tests/data/sweep/C3.nc (regenerate:
 #: deapull solve --scene coin_pull --setup C3 --out DIR --set mesh.n_length=8 --set mesh.n_width=1
 #: --set mesh.coin_size_m=0.004)
-#: (pinned to the discretisation the fixture was made with: the full model and MUMPS)
+#: (pinned to the discretisation the fixture was made with: the full model, MUMPS, the
+#: friction regularisation eps_v = 1e-4 m/s and the placement's first try at full gravity,
+#: the defaults before 2026-11-23)
 C3_TEST = ("mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004", "mesh.symmetry='none'",
-           "solver.linear_solver='mumps'")
+           "solver.linear_solver='mumps'", "contact.slip_rate_regularisation_m_s=1e-4",
+           "time.placement_first_step=1.0")
 #: the records of that run as the code before the stepping API wrote them (every variable)
 C3_REFERENCE = DATA / "sweep" / "C3.nc"
 

@@ -46,8 +46,13 @@ def _press(problem, depth_m):
 def half_and_full(tmp_path_factory):
     out = tmp_path_factory.mktemp("sym")
     runs = {}
+    # eps_v 1e-4: the comparison needs the same step sequence in both; at the shipped 1e-5 this
+    # coarse mesh's 4 ms steps make the half model cut one step back where the full one does not
+    # (COUPLING_NOT_CONVERGED at t = 0.82 s: 254 against 253 points), which moves x(t) by the
+    # time-step error, not by a symmetry error
     for sym in ("none", "half_z"):
-        sc = scenes.load("coin_pull", setup="C3", overrides=(*TINY_C3, f"mesh.symmetry='{sym}'"))
+        sc = scenes.load("coin_pull", setup="C3", overrides=(*TINY_C3, f"mesh.symmetry='{sym}'",
+                                                               "contact.slip_rate_regularisation_m_s=1e-4"))
         runs[sym] = xr.open_dataset(solve_scene(sc, out / sym, progress=False))
     return runs
 

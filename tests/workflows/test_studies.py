@@ -178,3 +178,37 @@ def test_table_times_keep_two_digits_below_a_second():
     assert cell(39.94, "s") == "39.9"
     assert cell(0.002171, "s") == "0.0022"     # a surrogate's rollout, not "0.0"
     assert cell(float("nan"), "s") == "–"
+
+
+def test_a_stored_result_is_reused_only_for_the_same_resolved_scene(tmp_path):
+    """Resume skips a case whose stored result was made with the same resolved scene, and
+    solves it again when the scene file (or a default) changed since — not only its name,
+    setup and overrides."""
+    scene_file = tmp_path / "pull.toml"
+    text = (REPO / "deapull" / "scenes" / "coin_pull.toml").read_text()
+    scene_file.write_text(text)
+    solved = []
+
+    def fake_solve(case, scene, out, group, progress):
+        solved.append(scene.contact.slip_rate_regularisation_m_s)
+        return {"status": "ok", "steps": 1}
+
+    case = Case("c3", str(scene_file), "C3", TINY, "tiny C3")
+    for _ in range(2):
+        run_cases([case], tmp_path / "out", MPI.COMM_WORLD, solve=fake_solve)
+    assert solved == [1e-5]                                          # the second run resumed
+    scene_file.write_text(text.replace("slip_rate_regularisation_m_s = 1e-5", "slip_rate_regularisation_m_s = 1e-4"))
+    [row] = run_cases([case], tmp_path / "out", MPI.COMM_WORLD, solve=fake_solve)
+    assert solved == [1e-5, 1e-4] and row["status"] == "ok"           # the edited scene was solved again
+
+
+def test_a_sweep_dataset_counts_as_done_only_for_its_own_scene(tmp_path):
+    from deapull import dataset
+    from deapull import scene as scenes
+    made = scenes.load("coin_pull", setup="C3", overrides=TINY)
+    other = scenes.load("coin_pull", setup="C3", overrides=(*TINY, "contact.slip_rate_regularisation_m_s=1e-4"))
+    cols = {v: np.zeros(3) for v in dataset.VARIABLES}
+    cols["t"] = np.arange(3.0)
+    path = dataset.write(dataset.build(cols, {"scene_toml": made.to_toml()}), tmp_path / "C3.nc")
+    assert dataset.is_complete(path) and dataset.is_complete(path, made.to_toml())
+    assert not dataset.is_complete(path, other.to_toml())
