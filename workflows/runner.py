@@ -237,9 +237,10 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
         ``solve(case, scene, out_dir, group_comm, progress) -> dict`` (default
         :func:`solve_case`: the dataset under ``<out>/cases/<name>/``).
     is_done : callable, optional
-        ``is_done(case, scene) -> bool``: a case to skip although it has no stored result
-        (the sweep: a complete dataset made with the resolved ``scene``). The stored result
-        of such a case, if any, is returned.
+        ``is_done(case, scene) -> bool``: whether the case's own output is there (the sweep:
+        a complete dataset made with the resolved ``scene``). Given it, a stored "ok" result
+        counts only with its output (a deleted dataset is solved again); a failed or
+        rejected result still counts. The stored result of a done case, if any, is returned.
     """
     out_dir = Path(out_dir)
     names = [c.name for c in cases]
@@ -251,7 +252,12 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
 
     def done(case):
         scene = resolved.get(case.name)
-        return load_result(out_dir, case, scene) is not None or (is_done is not None and is_done(case, scene))
+        stored = load_result(out_dir, case, scene)
+        if is_done is None:
+            return stored is not None
+        # a study with outputs of its own (the sweep's datasets): an "ok" result whose output
+        # is gone is not done; a failed or rejected row stays a row
+        return is_done(case, scene) or (stored is not None and stored.get("status") != "ok")
 
     if comm.rank == 0:
         for case in cases:

@@ -212,3 +212,23 @@ def test_a_sweep_dataset_counts_as_done_only_for_its_own_scene(tmp_path):
     path = dataset.write(dataset.build(cols, {"scene_toml": made.to_toml()}), tmp_path / "C3.nc")
     assert dataset.is_complete(path) and dataset.is_complete(path, made.to_toml())
     assert not dataset.is_complete(path, other.to_toml())
+
+
+def test_a_case_whose_output_is_gone_is_solved_again(tmp_path):
+    """With ``is_done`` (the sweep: its dataset is there), a stored "ok" result alone is not
+    done — a deleted dataset is solved again — while a failed row stays a row."""
+    solved, outputs = [], set()
+
+    def fake_solve(case, scene, out, group, progress):
+        solved.append(case.name)
+        outputs.add(case.name)
+        return {"status": "failed" if case.name == "bad" else "ok", "steps": 1}
+
+    cases = [Case(n, "coin_pull", "C3", TINY, n) for n in ("good", "bad")]
+    is_done = lambda case, scene: case.name in outputs        # noqa: E731
+    run_cases(cases, tmp_path, MPI.COMM_WORLD, solve=fake_solve, is_done=is_done)
+    run_cases(cases, tmp_path, MPI.COMM_WORLD, solve=fake_solve, is_done=is_done)
+    assert solved == ["good", "bad"]                           # resumed: nothing solved twice
+    outputs.clear()                                            # the datasets were deleted
+    run_cases(cases, tmp_path, MPI.COMM_WORLD, solve=fake_solve, is_done=is_done)
+    assert solved == ["good", "bad", "good"]                   # the ok case again, not the failed one
