@@ -215,6 +215,15 @@ class Report:
         self.claims: list[Claim] = []
         self.sources: dict[Path, dict] = {}
 
+    def found(self, path: Path, section: Section, what: str, step: str) -> bool:
+        """True and ``path`` registered as a source when it exists; otherwise the section
+        says what is missing (``what``, `path` appended) and which make ``step`` makes it."""
+        if not Path(path).is_file():
+            section.lack(f"{what} `{path}`", step)
+            return False
+        self.source(path, section)
+        return True
+
     def source(self, path: Path, section: Section) -> str:
         """Register a file a number came from; returns the anchor of its provenance row."""
         path = Path(path)
@@ -643,10 +652,8 @@ def section_sweep(rep: Report, inputs: Inputs) -> Section:
 def section_fidelity(rep: Report, inputs: Inputs) -> Section:
     sec = Section("fidelity", "Error against run time (the FEM ladder and the surrogates)")
     csv_path = inputs.fidelity / "fidelity.csv"
-    if not csv_path.is_file():
-        sec.lack(f"the fidelity ladder `{csv_path}`", "fidelity")
+    if not rep.found(csv_path, sec, "the fidelity ladder", "fidelity"):
         return sec
-    rep.source(csv_path, sec)
     rows = read_csv(csv_path)
     png = inputs.fidelity / "fidelity_pareto.png"
     if png.is_file():
@@ -681,10 +688,8 @@ def _yes(value: str) -> str:
 def section_stability(rep: Report, inputs: Inputs) -> Section:
     sec = Section("stability", "Stability: stiff and extreme cases")
     md = inputs.stability / "stability.md"
-    if not md.is_file():
-        sec.lack(f"the stability table `{md}`", "stability")
+    if not rep.found(md, sec, "the stability table", "stability"):
         return sec
-    rep.source(md, sec)
     text = md.read_text()
     tables = markdown_tables(text)
     for line in text.splitlines():
@@ -705,10 +710,8 @@ def section_stability(rep: Report, inputs: Inputs) -> Section:
 def section_fem_accuracy(rep: Report, inputs: Inputs) -> Section:
     sec = Section("fem-accuracy", "FEM speed and accuracy (issue 12)")
     path = inputs.bench_fem / "bench_fem.json"
-    if not path.is_file():
-        sec.lack(f"the FEM benchmark `{path}`", "bench-fem")
+    if not rep.found(path, sec, "the FEM benchmark", "bench-fem"):
         return sec
-    rep.source(path, sec)
     res = json.loads(path.read_text())
     ref = res.get("reference", {})
     sec.p(f"Reference: {ref.get('label', '–')}, travel {fmt(1e3 * ref['travel_ref_m'], '.4f', 'mm')}"
@@ -738,12 +741,10 @@ def section_fem_accuracy(rep: Report, inputs: Inputs) -> Section:
 def section_protocols(rep: Report, inputs: Inputs) -> Section:
     sec = Section("protocols", "Surrogates on held-out voltage protocols (issue 13)")
     md = inputs.protocols / "protocols.md"
-    if not md.is_file():
-        if not step_done("excitation", inputs):
-            sec.lack(f"the excitation datasets under `{inputs.excitation}`", "excitation")
-        sec.lack(f"the held-out-protocol table `{md}`", "experiments-protocols")
+    if not md.is_file() and not step_done("excitation", inputs):
+        sec.lack(f"the excitation datasets under `{inputs.excitation}`", "excitation")
+    if not rep.found(md, sec, "the held-out-protocol table", "experiments-protocols"):
         return sec
-    rep.source(md, sec)
     tables = markdown_tables(md.read_text())
     for k, (headers, rows) in enumerate(tables[:2]):
         sec.table(Table(headers, rows, [f"proto-{k}-{i}" for i in range(len(rows))],
@@ -757,10 +758,8 @@ def section_protocols(rep: Report, inputs: Inputs) -> Section:
 def section_surrogates(rep: Report, inputs: Inputs) -> Section:
     sec = Section("surrogates", "Surrogates: Table II, box plot, rollouts, speed")
     csv_path = inputs.experiments / "experiments.csv"
-    if not csv_path.is_file():
-        sec.lack(f"the experiment sets `{csv_path}`", "experiments")
+    if not rep.found(csv_path, sec, "the experiment sets", "experiments"):
         return sec
-    rep.source(csv_path, sec)
     rows = read_csv(csv_path)
     meta = {}
     jpath = inputs.experiments / "experiments.json"
@@ -871,10 +870,7 @@ def _verdict(ours, paper) -> str:
 def section_control(rep: Report, inputs: Inputs) -> Section:
     sec = Section("control", "Control and inference (the paper's Fig. 6, §VI-B/C)")
     csv_path = inputs.control / "control.csv"
-    if not csv_path.is_file():
-        sec.lack(f"the closed-loop episodes `{csv_path}`", "control")
-    else:
-        rep.source(csv_path, sec)
+    if rep.found(csv_path, sec, "the closed-loop episodes", "control"):
         rows = read_csv(csv_path)
         run_json = inputs.control / "run.json"
         if run_json.is_file():
@@ -952,10 +948,7 @@ def section_control(rep: Report, inputs: Inputs) -> Section:
         else:
             sec.p("No policy in this run inferred φ (the MPC does): `make control` runs all four.")
     bench = inputs.bench_control / "bench_control.json"
-    if not bench.is_file():
-        sec.lack(f"the MPC step beside mpc.pytorch `{bench}`", "bench-control")
-    else:
-        rep.source(bench, sec)
+    if rep.found(bench, sec, "the MPC step beside mpc.pytorch", "bench-control"):
         b = json.loads(bench.read_text())
         b_rows = [[r.get("solver", ""), fmt(r.get("median_ms"), ".3g"), fmt(r.get("median_ms_per_iteration"), ".3g"),
                    fmt(r.get("mean_cost"), ".5g")] for r in b.get("rows", [])]
