@@ -68,6 +68,16 @@ CANDIDATES = {
     "half-16x4-g2-lob4": (*HALF, *UMF, *mesh(16, 4), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
     "half-16x4x2x1-lob4": (*HALF, *UMF, *mesh(16, 4, 2, 1), *quad("gauss_lobatto", 4)),
     "half-24x6-lob4": (*HALF, *UMF, *mesh(24, 6), *quad("gauss_lobatto", 4)),
+    "half-12x4-g2": (*HALF, *UMF, *mesh(12, 4), "mesh.x_grading=2.0"),
+    "half-12x4-g2-g8": (*HALF, *UMF, *mesh(12, 4), "mesh.x_grading=2.0", *quad("gauss", 8)),
+    "half-16x4-g2": (*HALF, *UMF, *mesh(16, 4), "mesh.x_grading=2.0"),
+    "half-10x4-g2-lob4": (*HALF, *UMF, *mesh(10, 4), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-12x6-g2-lob4": (*HALF, *UMF, *mesh(12, 6), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x2-lob4": (*HALF, *UMF, *quad("gauss_lobatto", 4)),
+    "half-16x2-lob3": (*HALF, *UMF, *quad("gauss_lobatto", 3)),
+    "half-16x2-g2-lob4": (*HALF, *UMF, "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-12x2-g2-lob4": (*HALF, *UMF, *mesh(12, 2), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x4-lob3": (*HALF, *UMF, *mesh(16, 4), *quad("gauss_lobatto", 3)),
 }
 
 STUDIES = {"reference": REFERENCE, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES}

@@ -7,7 +7,8 @@ of coin travel), made by (from the repository root)
     OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \\
     mpirun -n 2 .venv/bin/deapull sweep --scene coin_pull --out DIR \\
         --set mesh.n_length=8 --set mesh.n_width=1 --set mesh.coin_size_m=0.004 \\
-        --set contact.slip_rate_regularisation_m_s=1e-4 --set time.placement_first_step=1.0
+        --set contact.slip_rate_regularisation_m_s=1e-4 --set time.placement_first_step=1.0 \\
+        --set contact.quadrature_degree=4
 
 and then trimmed and compressed into ``tests/data/sweep``: every file keeps all its
 attributes and the variables the surrogate reads (``t x u V dt Fx Fy``), except ``C3.nc``,
@@ -36,11 +37,12 @@ REPO = HERE.parents[1]
 OUT = HERE / "sweep"
 SETUPS = [f"C{i}" for i in range(1, 9)]
 #: the test-size mesh of the sweep
-#: (eps_v and the placement's first step pinned to the scenes' defaults when the fixture was
-#: made: the shipped eps_v = 1e-5 moves the test-size travels by ~4 % and the surrogate tests'
-#: figures were set on these)
+#: (eps_v, the placement's first step and the contact rule pinned to the scenes' defaults when
+#: the fixture was made: the shipped eps_v = 1e-5 moves the test-size travels by ~4 % and the
+#: surrogate tests' figures were set on these)
 OVERRIDES = ("mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004",
-             "contact.slip_rate_regularisation_m_s=1e-4", "time.placement_first_step=1.0")
+             "contact.slip_rate_regularisation_m_s=1e-4", "time.placement_first_step=1.0",
+             "contact.quadrature_degree=4")
 #: what every fixture file keeps: the surrogate's variables (deapull.surrogate.data.VARIABLES)
 TRIMMED = ("t", "x", "u", "V", "dt", "Fx", "Fy")
 #: the setups that keep every variable
