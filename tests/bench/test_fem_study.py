@@ -1,0 +1,36 @@
+"""The reference ladder's Richardson extrapolation (bench/fem_study.py): an observed order,
+an extrapolated value and an error bound from three levels with unequal refinement ratios,
+checked on sequences f(h) = f0 + C h^p whose limit and order are known."""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+from fem_study import GCI_SAFETY, richardson  # noqa: E402
+
+#: the ladder's element lengths (16, 24, 32 divisions): ratios 1.5 and 4/3
+H = (1 / 16, 1 / 24, 1 / 32)
+RATIOS = (H[0] / H[1], H[1] / H[2])
+
+
+@pytest.mark.parametrize("p", [0.5, 1.0, 2.0, 3.0])
+@pytest.mark.parametrize("c", [0.4, -0.3])
+def test_richardson_recovers_the_order_and_the_limit(p, c):
+    f0 = 1.3e-3
+    travels = [f0 + c * 1e-3 * h ** p for h in H]
+    order, limit, bound = richardson(travels, RATIOS)
+    assert order == pytest.approx(p, rel=1e-6)
+    assert limit == pytest.approx(f0, rel=1e-9)
+    # the bound is the safety factor times the finest level's true error
+    assert bound == pytest.approx(GCI_SAFETY * abs(travels[-1] - f0), rel=1e-6)
+
+
+def test_oscillating_levels_give_no_order_and_the_larger_difference_as_bound():
+    order, limit, bound = richardson([1.3563, 1.3302, 1.3400], RATIOS)
+    assert math.isnan(order)
+    assert limit == 1.3400
+    assert bound == pytest.approx(1.3563 - 1.3302)
