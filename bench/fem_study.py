@@ -89,6 +89,9 @@ CANDIDATES = {
     "half-16x2-g2-lob4": (*HALF, *UMF, "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
     "half-12x2-g2-lob4": (*HALF, *UMF, *mesh(12, 2), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
     "half-16x4-lob3": (*HALF, *UMF, *mesh(16, 4), *quad("gauss_lobatto", 3)),
+    "half-12x2-g8": (*HALF, *UMF, *mesh(12, 2), *quad("gauss", 8)),
+    "half-12x2-g2-g8": (*HALF, *UMF, *mesh(12, 2), "mesh.x_grading=2.0", *quad("gauss", 8)),
+    "half-16x2-g2-g8": (*HALF, *UMF, "mesh.x_grading=2.0", *quad("gauss", 8)),
 }
 
 STUDIES = {"reference": REFERENCE, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES}
