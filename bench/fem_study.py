@@ -100,6 +100,8 @@ CANDIDATES = {
     "half-16x2-g2-g8": (*HALF, *UMF, "mesh.x_grading=2.0", *quad("gauss", 8)),
     "half-12x6-g8": (*HALF, *UMF, *mesh(12, 6), *quad("gauss", 8)),
     "half-12x6x2x2-g8": (*HALF, *UMF, *mesh(12, 6, 2, 2), *quad("gauss", 8)),
+    "half-16x6-g8": (*HALF, *UMF, *mesh(16, 6), *quad("gauss", 8)),
+    "half-16x10-g8": (*HALF, *UMF, *mesh(16, 10), *quad("gauss", 8)),
 }
 
 STUDIES = {"reference": REFERENCE, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES}
