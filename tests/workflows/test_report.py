@@ -132,6 +132,21 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
         assert src["anchor"] in page.ids and len(src["sha256"]) == 12
 
 
+def test_fem_section_states_the_references_own_error_or_that_it_is_unknown(tmp_path):
+    data = _sweep(tmp_path, site.SETUPS)
+    inputs = _inputs(tmp_path, data)
+    _fake_studies(inputs)
+    site.build(tmp_path / "r1", inputs, progress=False)
+    assert "The reference's own error is not known" in (tmp_path / "r1" / "report.md").read_text()
+    bench = inputs.bench_fem / "bench_fem.json"
+    res = json.loads(bench.read_text())
+    res["reference"]["error_bound_rel"] = 0.0123
+    bench.write_text(json.dumps(res))
+    site.build(tmp_path / "r2", inputs, progress=False)
+    text = (tmp_path / "r2" / "report.md").read_text()
+    assert "The reference's own error bound: ± 1.23 %" in text and "not known" not in text
+
+
 def test_rebuild_drops_images_no_longer_shown(tmp_path):
     data = _sweep(tmp_path, site.SETUPS)
     inputs = _inputs(tmp_path, data)
