@@ -52,8 +52,8 @@ def quad(rule, degree):
 #: 1/180 s step cap (the time-step error of x(t) is 100x below the mesh error, docs/physics.md,
 #: and the cap makes the finest level affordable; ``dt`` measures it on the coarsest level)
 REF_DT = "time.dt_max_s=0.0055555555555556"
-#: (the finest, 8 across the half-width as the issue asks, has 31,320 dofs: its placement
-#: alone ran 45 min on a shared core, so it has not finished in a session yet)
+#: (the finest, 8 across the half-width as the issue asks, has 31,320 dofs: serial UMFPACK
+#: spent 45 min in its placement; under mpirun -n 2 (MUMPS) the whole run took 26 min)
 LADDER = ((16, 8), (24, 12), (32, 16))
 #: coarser levels of the same family, outside the Richardson estimate (``--study levels``):
 #: 12 x 6 departs from the others by a stick episode (docs/fem_accuracy.md)
