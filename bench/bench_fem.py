@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -24,7 +23,7 @@ import numpy as np
 
 from deapull import dataset
 from deapull.io import write_json
-from fem_study import OLD_DEFAULT     # the default before issue 12, every key pinned (bench/ is on sys.path)
+from fem_study import OLD_DEFAULT, mpirun_env     # bench/ is on sys.path
 
 PAPER_ABAQUS_S = 130.0          # paper: 1 s / 700 points per setup
 TARGET_S, TARGET_TRAVEL_ERR, TARGET_MAE, TARGET_SWEEP_S = 13.0, 0.02, 0.01, 60.0   # issue 12's goals
@@ -77,8 +76,7 @@ def main(argv=None) -> int:
                       "travel_mm": 1e3 * float(np.max(np.abs(r.columns["x"]))), "travel_err": err, "x_mae": mae,
                       "slip_rate_reg_m_s": r.number("contact_slip_rate_reg_m_s")}
     if not args.skip_sweep:
-        env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-                   OMPI_MCA_rmaps_base_oversubscribe="1")
+        env = mpirun_env()
         sweep_dir = out / "sweep"
         if sweep_dir.exists():            # a timed sweep from scratch: no dataset, no stored result
             shutil.rmtree(sweep_dir)
