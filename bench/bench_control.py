@@ -4,7 +4,7 @@ problem, in one run, beside the paper's 1.2 s per iteration.
 
 The same problem for every solver: f_a (kind f-coulomb, ``--model`` or trained here on
 C3..C7, validated on C8, ``--epochs``) in the task's scaled units
-(:class:`deapull.control.task.CoinDynamics`, the true φ of C1), the scaled cost without a
+(:class:`deapull.control.dynamics.CoinDynamics`, the true φ of C1), the scaled cost without a
 final term (mpc.pytorch has none: the last state is not costed), the box |ΔV| ≤ ΔV_max
 (ν ∈ [−1, 1]), the same warm start (the full ramp) and the same number of iterations
 (mpc.pytorch is made to run all of them: ``eps = 0`` and no early stop). The plans start
@@ -14,7 +14,7 @@ applies the ramp without solving).
 
 Ours runs twice: compiled (:mod:`deapull.control.native`, the MPC's default; timed over
 ``--repeat`` passes of the states) and in eager torch (:func:`deapull.control.mpc.solve` on
-:class:`~deapull.control.task.CoinDynamics`, one pass).
+:class:`~deapull.control.dynamics.CoinDynamics`, one pass).
 
 mpc.pytorch (PyPI ``mpc``) pins numpy < 2 and torch: it is installed apart from the project
 (``pip install --no-deps --target DIR mpc``, as ``make bench-control`` does) and imported
@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from deapull.control import mpc, native  # noqa: E402
-from deapull.control.task import X_UNIT_M, CoinDynamics, coin_cost  # noqa: E402
+from deapull.control.dynamics import X_UNIT_M, CoinDynamics, coin_cost  # noqa: E402
 from deapull.io import write_json  # noqa: E402
 from deapull.surrogate import store  # noqa: E402
 from deapull.surrogate.data import load_sweep  # noqa: E402

@@ -8,8 +8,9 @@ Installed as ``deapull.control`` so that it never shadows python-control's ``con
   success on the true state, one ΔV limit for every policy, seeded observation noise);
 * :mod:`~deapull.control.policies` — the policy interface and the PD, heuristic and SAC
   baselines;
-* :mod:`~deapull.control.mpc`, :mod:`~deapull.control.task`, :mod:`~deapull.control.inference`
-  — the box-constrained iLQR, the MPC policy on f_a and the online inference of φ.
+* :mod:`~deapull.control.mpc`, :mod:`~deapull.control.dynamics`, :mod:`~deapull.control.mpc_policy`, :mod:`~deapull.control.inference`
+  — the box-constrained iLQR, f_a in scaled units with its cost, the MPC policy on f_a and the
+  online inference of φ.
 
 The experiment harness and the ``deapull control`` command are in
 :mod:`deapull.workflows.control` (see README, "Control").

@@ -4,7 +4,7 @@ An MPC step is 20 iterations of a 20-step plan: ~400 sequential steps of f_a plu
 backward-pass steps. In eager torch each of them costs tens of microseconds of
 per-operation overhead (the tip-contact step alone is a Newton loop of a dozen operations
 per iteration), which is why the torch solver (:mod:`deapull.control.mpc` on
-:class:`~deapull.control.task.CoinDynamics`) needs ~0.8 s per MPC step. ``native_mpc.c``
+:class:`~deapull.control.dynamics.CoinDynamics`) needs ~0.8 s per MPC step. ``native_mpc.c``
 runs the same arithmetic in C:
 
 * the material network m of f-coulomb as the exact piecewise-affine function it is
@@ -16,7 +16,7 @@ runs the same arithmetic in C:
   torch model's final Newton correction gives);
 * :func:`deapull.control.mpc.solve` for n = 3, m = 1, operation for operation.
 
-:class:`NativeCoinDynamics` is a drop-in :class:`~deapull.control.task.CoinDynamics`
+:class:`NativeCoinDynamics` is a drop-in :class:`~deapull.control.dynamics.CoinDynamics`
 (``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
 returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
 Jacobians and plans to the torch path's (``tests/control/test_native.py``). Compiled on
@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from deapull.control import mpc
-from deapull.control.task import U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics
+from deapull.control.dynamics import U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics
 from deapull.surrogate import native as surrogate_native
 
 log = logging.getLogger(__name__)

@@ -8,7 +8,7 @@ its per-step limit ±ΔV_max and the voltage to [0, V_max]; every policy runs un
 limit. The true state never reaches a policy.
 
 * :class:`Policy` — the interface (``name``, ``reset(env)``, ``act(obs, info) -> ΔV``,
-  ``inferred()``); the MPC (:mod:`deapull.control.task`) implements it too.
+  ``inferred()``); the MPC (:mod:`deapull.control.mpc_policy`) implements it too.
 * :class:`PDPolicy` — the paper's PD, K_p = −0.5, K_d = 5, on the error in millimetres.
 * :class:`HeuristicPolicy` — the paper's ramp, +0.5 V per step.
 * :class:`SACPolicy` — soft actor-critic (stable-baselines3; the paper's 2 × 256 networks,

@@ -9,9 +9,18 @@ script copies the Python files into the layout they install as (a temporary
 
 ``tests/deapull/test_layers.py`` runs it, and runs it again with one upward import added
 to show that the contract catches it.
+
+import-linter's layers contract says nothing about arrows *inside* one layer, so the
+script also looks for import cycles between the modules of the assembled tree
+(:func:`cycles`: every ``import``/``from ... import`` of a ``deapull`` module, at module or
+function level, read with :mod:`ast`; strongly connected components of that graph) and
+fails on any::
+
+    .venv/bin/python scripts/check_layers.py        # exit 1 and the cycle when one exists
 """
 from __future__ import annotations
 
+import ast
 import os
 import shutil
 import subprocess
@@ -43,11 +52,82 @@ def lint(tree: Path, repo: Path = REPO) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300)
 
 
+def _module_name(tree: Path, path: Path) -> str:
+    parts = list(path.relative_to(tree).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(tree: Path, root: str = "deapull") -> dict[str, set[str]]:
+    """Module → the ``root`` modules it imports (anywhere in the file), on an assembled tree."""
+    modules = {_module_name(tree, p): p for p in (tree / root).rglob("*.py")}
+    graph: dict[str, set[str]] = {name: set() for name in modules}
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    base = ".".join(anchor + ([base] if base else []))
+                # ``from pkg import mod`` imports the module pkg.mod when there is one
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+            for target in targets:
+                while target and target not in modules:     # deapull.x.y.Name -> deapull.x.y
+                    target = target.rpartition(".")[0]
+                if target and target != name and not name.startswith(target + "."):
+                    graph[name].add(target)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles of ``graph``: its strongly connected components of more than one module
+    (Tarjan), each sorted; the list sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
 def main() -> int:
     with tempfile.TemporaryDirectory(prefix="deapull-layers-") as tmp:
-        proc = lint(assemble(Path(tmp)))
+        tree = assemble(Path(tmp))
+        proc = lint(tree)
+        found = cycles(import_graph(tree))
     print(proc.stdout + proc.stderr, end="")
-    return proc.returncode
+    for cycle in found:
+        print("import cycle: " + " <-> ".join(cycle))
+    print(f"{len(found)} import cycle(s) inside the layers")
+    return proc.returncode or (1 if found else 0)
 
 
 if __name__ == "__main__":

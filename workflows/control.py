@@ -175,7 +175,7 @@ def check(config: ControlConfig) -> None:
                 raise InputError(f"--data {str(config.data)!r}: {spec.setup}.nc not found (the plant's coin φ "
                                  f"is read from it)")
     if any(p.startswith("mpc") for p in config.policies):
-        from deapull.control.task import COSTS
+        from deapull.control.dynamics import COSTS
         if config.mpc_cost not in COSTS:
             raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
         if config.phi_prior not in PHI_PRIORS:
@@ -247,10 +247,10 @@ def build_policy(config: ControlConfig, name: str, spec: PlantSpec, plant):
 
 
 def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
-    """The MPC (:mod:`deapull.control.task`) planning with f_a from ``--mpc-model``: φ inferred
+    """The MPC (:mod:`deapull.control.mpc_policy`) planning with f_a from ``--mpc-model``: φ inferred
     online, or the plant's true φ with ``--mpc-oracle``; ``filter="kf"``: from a Kalman
     estimate of the position (``mpc+kf``)."""
-    from deapull.control.task import MPCConfig, MPCPolicy
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.surrogate import store
     model, _ = store.load(config.mpc_model)
     from deapull.control.inference import COIN_PRIOR, InferenceConfig

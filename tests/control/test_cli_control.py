@@ -60,7 +60,7 @@ def test_bad_mpc_arguments_exit_2(base, tmp_path, capsys, fs1_dir, change, named
 
 
 def test_mpc_runs_through_the_harness_and_reports_its_inference(base, tmp_path, fs1_dir):
-    """Three iterations of the MPC (deapull.control.task) on the fixture's plant: the row
+    """Three iterations of the MPC (deapull.control.mpc_policy) on the fixture's plant: the row
     carries its inferred φ and its own plan and inference times, and the inferred-φ figure
     is drawn (the MPC itself is tested in test_mpc.py)."""
     out = tmp_path / "out"

@@ -80,7 +80,7 @@ def test_mpc_with_a_filter_holds_the_target_closer_under_noise(coulomb_and_plant
     """The MPC planning from the Kalman estimate (f_a's own prediction) instead of x̃ keeps
     the coin nearer the target once there (fixture surrogate, σ = 0.1 mm, true φ)."""
     from deapull.control.env import CoinPushEnv
-    from deapull.control.task import MPCConfig, MPCPolicy
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.workflows.control import run_episode
 
     from .conftest import FIXTURE_TARGET_M

@@ -237,7 +237,7 @@ def test_cost_never_rises_and_the_shifted_plan_warm_starts():
     assert float(warm.cost) - float(full.cost) < 0.05 * (float(cold.cost) - float(full.cost))
 
 
-# --- the coin task (deapull.control.task) -------------------------------------------------
+# --- the coin task (deapull.control.mpc_policy) -------------------------------------------------
 
 TRUTH_PHI = (1.36e-3, 0.2, 0.5)
 
@@ -248,7 +248,7 @@ def coulomb(trained):
 
 
 def test_coin_dynamics_is_the_models_step_in_scaled_units(coulomb):
-    from deapull.control.task import CoinDynamics
+    from deapull.control.dynamics import CoinDynamics
     from deapull.surrogate.phi import Phi
     phi = Phi(*TRUTH_PHI).to(dtype=F64)
     dyn = CoinDynamics(coulomb, phi, 1e-3, 5.0, 400.0)
@@ -271,7 +271,7 @@ def test_coin_dynamics_is_the_models_step_in_scaled_units(coulomb):
 
 
 def test_paper_cost_is_the_papers_up_to_scale_and_constant():
-    from deapull.control.task import coin_cost
+    from deapull.control.dynamics import coin_cost
     paper, scaled = coin_cost(-1e-3, "paper"), coin_cost(-1e-3, "scaled", dv_weight=0.5)
     xi = torch.tensor([[[-0.4, 0.3, 3.7], [-1.2, 0.0, 0.5]]], dtype=F64)    # mm, 0.01 m/s, 100 V
     nu = torch.tensor([[[0.2], [-1.0]]], dtype=F64)
@@ -297,7 +297,7 @@ def episode(policy, env, seed=0):
 def test_mpc_drives_a_surrogate_plant_to_the_target(coulomb, infer, engine):
     from deapull.control.env import CoinPushEnv
     from deapull.control.plants import SurrogatePlant
-    from deapull.control.task import MPCConfig, MPCPolicy
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.surrogate.phi import Phi
     truth = Phi(*TRUTH_PHI)
     env = CoinPushEnv(SurrogatePlant(coulomb, truth), target_m=-2e-4, max_steps=120)

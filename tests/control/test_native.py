@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(not native.available(), reason="no C compiler fo
 
 @pytest.fixture(scope="module")
 def pair(trained):
-    from deapull.control.task import CoinDynamics
+    from deapull.control.dynamics import CoinDynamics
     from deapull.surrogate.phi import Phi
     model = trained("f-coulomb").model
     phi = Phi(*TRUTH_PHI).to(dtype=F64)
@@ -75,7 +75,7 @@ def test_native_jacobians_are_autograds_and_finite_differences(pair):
 
 @pytest.mark.parametrize("final", [False, True])
 def test_native_solver_gives_the_torch_solvers_plans(pair, final):
-    from deapull.control.task import X_UNIT_M, coin_cost
+    from deapull.control.dynamics import X_UNIT_M, coin_cost
     slow, fast = pair
     T = 10
     with torch.no_grad():

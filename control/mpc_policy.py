@@ -1,21 +1,5 @@
-"""The coin task for the MPC: f_a's dynamics in scaled units, the costs, and the MPC policy.
-
-**State and control** (scaled so that every entry is O(0.01–1)):
-ξ = (x / 1 mm, u / (0.01 m/s), V / 100 V), the coin's position and velocity and the
-voltage now applied (the DEA's state: the tip-contact model's memory is its stroke at that
-voltage); control ν = ΔV / ΔV_max ∈ [−1, 1] (the env's per-step limit). One step:
-V' = clip(V + ν ΔV_max, 0, V_max) (the env's own clipping, so V ∈ [0, V_max] holds in the
-plan as in the env), then (x', u') = f_a((x, u), (V', Δt); V, φ) with the current φ.
-
-**Costs** (:func:`coin_cost`), ℓ_t on (ξ_t, ν_t) and ℓ_T on ξ_T:
-
-* ``scaled`` (default): ½[(x − x^T)²/mm² + w ν²] with w = ``dv_weight`` (1e-3: a full
-  ΔV_max step costs as much as a 0.032 mm error held for one step), and the same position
-  term at the end. No cost on V itself: holding the coin at the target may need a high
-  steady voltage (C3: ~366 V at −1 mm).
-* ``paper``: the paper's ½[(x − x^T)² + 10⁻³ V²] in SI units (eq. 8, w_s = 1,
-  w_a = 10⁻³ on the voltage), rescaled by 10⁶ (same minimiser). At V ≈ 370 V the voltage
-  term is ~10⁸ times the position term at a 1 mm error, so this MPC keeps V near 0.
+"""The MPC policy on f_a (paper Algorithm 2, MPC branch); f_a's scaled dynamics and cost are in
+:mod:`deapull.control.dynamics`.
 
 **Dead zone and reach.** Below the onset voltage the model holds the coin stuck and every
 Jacobian of x with respect to the controls is 0, so iLQR cannot see that more voltage
@@ -37,92 +21,36 @@ from the previous estimate and the applied voltages. The position is the observa
 itself, or with ``filter="kf"`` (policy ``mpc+kf``) the estimate of a Kalman filter whose
 prediction is that same model step (:mod:`deapull.control.filters`).
 """
+
 from __future__ import annotations
 
-import copy
 import functools
 import time
 from dataclasses import dataclass, field, replace
 
 import torch
 
-from deapull.control import mpc
+from deapull.control import mpc, native
+from deapull.control.dynamics import COSTS, U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics, coin_cost
+from deapull.control.filters import FILTERS, ModelKalman
 from deapull.control.inference import InferenceConfig, OnlineInference
 from deapull.control.policies import Policy
 from deapull.errors import InputError
 from deapull.surrogate.phi import Phi
 
-#: units of the scaled state (x in m, u in m/s, V in V)
-X_UNIT_M, U_UNIT_M_S, V_UNIT_V = 1e-3, 1e-2, 100.0
-COSTS = ("scaled", "paper")
 ENGINES = ("auto", "native", "torch")
-#: the paper's action penalty on V (eq. 8, with w_s = 1 on x in m)
-PAPER_ACTION_WEIGHT = 1e-3
-
-
-class CoinDynamics:
-    """f_a as ``dynamics(ξ (N, 3), ν (N, 1)) -> ξ' (N, 3)`` in scaled units (module docstring).
-
-    Parameters
-    ----------
-    model : Surrogate
-        f_a, kind ``f-coulomb`` or ``f``; a float64 copy with frozen weights is used.
-    phi : Phi
-        The coin to plan for (:attr:`phi` may be replaced between solves).
-    dt, dv_max_V, v_max_V : float
-        Step (s), per-step limit of |ΔV| (V) and largest voltage (V).
-    """
-
-    def __init__(self, model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float):
-        if model.kind not in ("f-coulomb", "f"):
-            raise InputError(f"the MPC plans with a physics model (f-coulomb or f), not {model.kind!r}")
-        self.model = copy.deepcopy(model).double().eval().requires_grad_(False)
-        self.phi = phi
-        self.dt, self.dv_max_V, self.v_max_V = float(dt), float(dv_max_V), float(v_max_V)
-
-    def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
-        x, u, V = xi[:, 0] * X_UNIT_M, xi[:, 1] * U_UNIT_M_S, xi[:, 2] * V_UNIT_V
-        V_next = torch.clamp(V + nu[:, 0] * self.dv_max_V, 0.0, self.v_max_V)
-        s = torch.stack([x, u], -1)
-        a = torch.stack([V_next, torch.full_like(V_next, self.dt)], -1)
-        if self.model.kind == "f-coulomb":
-            s_next, _ = self.model(s, a, V, self.phi)
-        else:
-            s_next, _ = self.model(s, a, self.phi)
-        return torch.stack([s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S, V_next / V_UNIT_V], -1)
-
-    def state(self, x_m: float, u_m_s: float, V_V: float) -> torch.Tensor:
-        """ξ (1, 3) of a coin at x (m) with velocity u (m/s) under V (V)."""
-        return torch.tensor([[x_m / X_UNIT_M, u_m_s / U_UNIT_M_S, V_V / V_UNIT_V]], dtype=torch.float64)
 
 
 def make_dynamics(model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float, engine: str = "auto"):
     """f_a as :class:`CoinDynamics` (``engine="torch"``) or its compiled twin
     :class:`~deapull.control.native.NativeCoinDynamics` (``"native"``; ``"auto"``: where
     available)."""
-    from deapull.control import native
     if engine == "native" or (engine == "auto" and native.available(model)):
         if not native.available(model):
             raise InputError(f"the native MPC needs an f-coulomb f_a and a C compiler (f_a is {model.kind!r}; "
                              f"compiler {'found' if native.library() is not None else 'missing'})")
         return native.NativeCoinDynamics(model, phi, dt, dv_max_V, v_max_V)
     return CoinDynamics(model, phi, dt, dv_max_V, v_max_V)
-
-
-def coin_cost(target_m: float, kind: str = "scaled", dv_weight: float = 1e-3, terminal_weight: float = 1.0
-              ) -> mpc.QuadCost:
-    """The MPC's cost on (ξ, ν) (module docstring); constant terms dropped."""
-    if kind not in COSTS:
-        raise InputError(f"MPC cost {kind!r}: choose one of {', '.join(COSTS)}")
-    xt = target_m / X_UNIT_M
-    if kind == "scaled":
-        w_x, w_V, w_dv = 1.0, 0.0, float(dv_weight)
-    else:
-        # ½[(x − x^T)² + 1e-3 V²] (SI) × 1e6, in ξ: x = 1e-3 ξ_0, V = 100 ξ_2
-        w_x, w_V, w_dv = 1.0, PAPER_ACTION_WEIGHT * V_UNIT_V ** 2 / X_UNIT_M ** 2, 0.0
-    C = torch.diag(torch.tensor([w_x, 0.0, w_V, w_dv], dtype=torch.float64))
-    c = torch.tensor([-w_x * xt, 0.0, 0.0, 0.0], dtype=torch.float64)
-    return mpc.QuadCost(C, c, terminal_weight * C[:3, :3].clone(), terminal_weight * c[:3].clone())
 
 
 @dataclass(frozen=True)
@@ -168,7 +96,6 @@ class MPCConfig:
     process_fraction: float = 0.2
 
     def __post_init__(self):
-        from deapull.control.filters import FILTERS
         if self.filter not in FILTERS:
             raise InputError(f"MPC filter {self.filter!r}: choose one of {', '.join(FILTERS)}")
         if self.engine not in ENGINES:
@@ -218,7 +145,6 @@ class MPCPolicy(Policy):
         self.noisy = noise > 0
         self.kalman = None
         if cfg.filter == "kf":
-            from deapull.control.filters import ModelKalman
             self.kalman = ModelKalman(noise, cfg.process_std_m, cfg.process_fraction)
         if cfg.infer:
             # a transition counts as moving (stick hinge) only beyond 3 noise stds
