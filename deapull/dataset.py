@@ -50,6 +50,15 @@ VARIABLES = {
     "tip_uz": ("m", "mean z displacement of the DEA's free-end face"),
     "mean_abs_J_minus_1": ("1", "volume average of |J - 1| (incompressibility check)"),
     "volume_change": ("1", "relative change of the DEA's volume, (integral of J - V0) / V0"),
+    "n_contact": ("1", "quadrature points of the DEA-obstacle contact integral that touch the obstacle "
+                       "(penetration > 0), in the modelled mesh (a half model: its half)"),
+    "contact_x": ("m", "x of the DEA-obstacle contact centre: current positions weighted by the normal "
+                       "traction (0 when nothing touches)"),
+    "contact_z": ("m", "z of the contact centre (0 for a half model, whose mirror image balances it)"),
+    "table_Rx": ("N", "force of the table on the DEA along x (0 without a [table]); never part of Fx"),
+    "table_Ry": ("N", "force of the table on the DEA along y, upward (0 without a [table]); never part of Fy"),
+    "table_penetration_m": ("m", "largest penetration of the DEA's underside into the table at the table "
+                                 "integral's quadrature points"),
     "wall_time_s": ("s", "wall time of the step"),
 }
 #: the variables of the paper's Table I: every dataset has them
@@ -66,6 +75,11 @@ ATTRIBUTES = {
     "contact_slip_rate_reg_m_s": "slip-rate regularisation eps_v of the DEA-coin friction",
     "contact_slip_rate_reg_bias": "what eps_v does to the coin travel, as measured (docs/fem_accuracy.md)",
     "contact_quadrature": "points of the contact integrals: rule and degree",
+    "contact_penalty_N_m3": "normal penalty k_n of the DEA-obstacle contact (N/m^3)",
+    "contact_min_active_points": "fewest contact points a step should have (contact.min_active_points)",
+    "contact_steps_below_min_points": "steps whose DEA-obstacle contact had fewer active points than that "
+                                      "(the patch is not resolved there; n_contact per step)",
+    "table": "the DEA-table contact part: height, mu_g, penalty, rule; 'none' without one",
     "mesh_symmetry": "'half_z' (the half z >= 0, forces doubled) or 'none'",
     "mesh_divisions": "element divisions of the full width (x, z, active, passive)",
     "gravity_m_s2": "gravitational acceleration", "voltage_max_V": "largest voltage of the protocol",

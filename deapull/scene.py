@@ -2,7 +2,7 @@
 
 A scene says what the simulation contains. Every quantity is SI with its unit in
 the key's name (``coin.density_kg_m3``, ``load.voltage_max_V``). Sections that a
-scene does not have (``coin``, ``stop``) are ``None`` and the solver assembles
+scene does not have (``coin``, ``stop``, ``table``) are ``None`` and the solver assembles
 nothing for them.
 
 Validation happens here, before any meshing or solving: unknown or missing keys,
@@ -64,6 +64,13 @@ def _floats(doc=""):
 
 REQUIRED = object()
 
+#: keys that a newer key replaced -> what to write instead
+REPLACED = {
+    "contact.penalty_scale": "give contact.penalty_N_m3, the normal penalty in N/m^3 (independent of the mesh "
+                             "and the rule; the old k_n was penalty_scale * E / h_tip, 2.24e9 N/m^3 for 10 on the "
+                             "shipped mesh)",
+}
+
 
 # --- sections ----------------------------------------------------------------------
 
@@ -114,13 +121,30 @@ class Stop:
 
 
 @dataclass(frozen=True)
+class Table:
+    """The fixed surface the DEA lies on (paper Sec. IV: "a unimorph DEA on the fixed surface"):
+    the plane y = height_m, which the DEA's underside may touch where it drapes; the coin
+    stands on the same plane (y = 0). Not the load protocol's ``table`` of (t, V) points."""
+    height_m: float = _num(0.0, doc="y of the table's top face (the coin stands on y = 0)")
+    mu_g: float = _nonneg(0.0, "Coulomb friction DEA-table")
+    penalty_N_m3: float = _pos(1e10, "normal penalty of the DEA-table contact (N/m^3: pressure per metre "
+                                     "of penetration)")
+    quadrature_degree: int = _num(6, lo=0, integer=True, doc="quadrature degree of the DEA-table integrals "
+                                                            "(Gauss-Lobatto points: they include the corners)")
+
+
+@dataclass(frozen=True)
 class Contact:
-    penalty_scale: float = _pos(10.0, "normal penalty = penalty_scale * E / h_cell (N/m^3)")
+    penalty_N_m3: float = _pos(2.24e9, "normal penalty k_n of the DEA-obstacle contact: pressure per metre of "
+                                       "penetration (N/m^3), independent of the mesh and the rule")
     slip_rate_regularisation_m_s: float = _pos(1e-5, "slip rate at which regularised Coulomb friction "
                                                       "reaches ~70 % of mu*p")
     quadrature_degree: int = _num(4, lo=0, integer=True, doc="quadrature degree of the contact and friction "
                                   "integrals on the DEA's underside (own measure, independent of "
                                   "solver.quadrature_degree)")
+    min_active_points: int = _num(20, lo=0, lo_open=False, integer=True,
+                                  doc="fewest quadrature points that should carry the DEA-obstacle contact; "
+                                      "the solver warns on a step with fewer (0: never)")
     quadrature_rule: str = _choice("gauss", ("gauss", "gauss_lobatto"),
                                    "points of the contact integrals: gauss (interior points) or gauss_lobatto "
                                    "(includes the facet's edges and corners, where the patch ends)")
@@ -206,7 +230,7 @@ class Mesh:
 
 @dataclass(frozen=True)
 class Scene:
-    """A whole scene; ``coin``/``stop`` are None when absent."""
+    """A whole scene; ``coin``/``stop``/``table`` are None when absent."""
     scene: SceneInfo
     dea: DEA
     load: Load
@@ -217,6 +241,7 @@ class Scene:
     gravity_m_s2: float = _nonneg(9.8, "gravitational acceleration along -y")
     coin: Optional[Coin] = None
     stop: Optional[Stop] = None
+    table: Optional[Table] = None
     setup: str = ""
     source_text: str = field(default="", compare=False, repr=False)
 
@@ -243,9 +268,9 @@ class Scene:
         return head + tomli_w.dumps(self.to_dict())
 
 
-SECTIONS = {"scene": SceneInfo, "dea": DEA, "coin": Coin, "stop": Stop, "contact": Contact, "load": Load,
-            "time": Time, "solver": Solver, "mesh": Mesh}
-OPTIONAL_SECTIONS = ("coin", "stop")
+SECTIONS = {"scene": SceneInfo, "dea": DEA, "coin": Coin, "stop": Stop, "table": Table, "contact": Contact,
+            "load": Load, "time": Time, "solver": Solver, "mesh": Mesh}
+OPTIONAL_SECTIONS = ("coin", "stop", "table")
 TOP_LEVEL = {f.name: f for f in dataclasses.fields(Scene) if f.name == "gravity_m_s2"}
 
 
@@ -310,6 +335,9 @@ def _build_section(name: str, cls, data) -> Any:
         raise SceneError(f"[{name}] must be a table, got {data!r}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
+    for key in unknown:
+        if f"{name}.{key}" in REPLACED:
+            raise SceneError(f"{name}.{key}: no longer a key; {REPLACED[f'{name}.{key}']}")
     if unknown:
         raise SceneError(f"{name}.{unknown[0]}: unknown key; allowed keys in [{name}]: {', '.join(fields)}")
     kwargs = {}
@@ -381,19 +409,29 @@ def _check_protocol(load: Load) -> None:
             raise SceneError(str(err)) from None
 
 
+def layout_bottom(scene: Scene) -> float:
+    """y of the clamped DEA's underside: the obstacle's top face (0 without one) + dea.clamp_gap_m
+    (the convention of :mod:`deapull.meshing.layout`)."""
+    obstacle = scene.coin or scene.stop
+    return (obstacle.height_m if obstacle else 0.0) + scene.dea.clamp_gap_m
+
+
 def _check_consistency(scene: Scene) -> None:
     _check_protocol(scene.load)
     d = scene.dea
     if d.film_thickness_m > d.active_thickness_m:
         raise SceneError(f"dea.film_thickness_m = {d.film_thickness_m!r}: must be <= dea.active_thickness_m "
                          f"= {d.active_thickness_m!r}")
-    for name in OPTIONAL_SECTIONS:
+    for name in ("coin", "stop"):
         ob = getattr(scene, name)
         if ob is not None and ob.edge_radius_m >= min(ob.radius_m, ob.height_m):
             raise SceneError(f"{name}.edge_radius_m = {ob.edge_radius_m!r}: must be < {name}.radius_m and "
                              f"< {name}.height_m")
     if scene.coin is not None and scene.stop is not None:
         raise SceneError("[coin] and [stop]: a scene has at most one of them")
+    if scene.table is not None and scene.table.height_m >= layout_bottom(scene):
+        raise SceneError(f"table.height_m = {scene.table.height_m!r}: must be below the clamped DEA's underside "
+                         f"(y = {layout_bottom(scene)!r})")
     if scene.load.end_time_s < scene.time.dt_max_s:
         raise SceneError(f"load.end_time_s = {scene.load.end_time_s!r}: must be >= time.dt_max_s")
     if scene.time.dt_min_s > scene.time.dt_max_s:

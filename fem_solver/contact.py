@@ -11,7 +11,7 @@ x = X_ref + u, with ρ its distance from the axis, q = (ρ − (r − r_f), x_y 
                      = max(q_ρ, q_y) − r_f      elsewhere (flat top or side wall)
     penetration  δ   = ⟨−d⟩
     normal       n   = q/|q| on the fillet, else e_y or e_ρ (outward)
-    traction     p_n = k_n δ,                       k_n = penalty_scale · E / h
+    traction     p_n = k_n δ,                       k_n = contact.penalty_N_m3 (N/m³)
     slip rate    s   = (Δu − ΔX e_x) / Δt,  s_T = s − (s·n) n
     friction     t_T = −μ p_n s_T / √(|s_T|² + ε_v²)
 
@@ -38,6 +38,7 @@ class ObstacleTerms:
     friction_residual: object  # friction virtual work (UFL form, residual sign)
     Fx: object                 # force of the DEA on the obstacle along x (UFL form)
     Fy: object                 # pressing force, positive downward (UFL form)
+    pressure: object           # normal traction p_n (UFL expression, Pa), for the contact centre
 
 
 def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, radius, edge_radius, mu,
@@ -79,6 +80,7 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
         friction_residual=-ufl.dot(t_T, v) * ds_contact,
         Fx=-traction[0] * ds_contact,
         Fy=traction[1] * ds_contact,
+        pressure=pn,
     )
 
 

@@ -7,6 +7,7 @@ friction without a coin or stop, no potential unless ``solver.electrostatics = "
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import dolfinx
@@ -15,7 +16,7 @@ import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from deapull.fem_solver import compat, contact, electro, materials
+from deapull.fem_solver import compat, contact, electro, materials, table
 from deapull.meshing import groups
 from deapull.meshing.layout import layout
 
@@ -39,7 +40,7 @@ class SolveResult:
 def tip_element_length(scene) -> float:
     """Length along x of the DEA's element at the free end (m), where the contact acts: the
     uniform L / n, or the smallest of a graded mesh (``mesh.x_grading``, a geometric
-    progression with clamp/tip ratio g over n elements). The normal penalty scales with it."""
+    progression with clamp/tip ratio g over n elements)."""
     m = scene.mesh
     n = m.n_length * 2 ** m.level
     L, g = scene.dea.length_m, m.x_grading
@@ -102,6 +103,7 @@ class DEAProblem:
         self._tip_measure(qd)
         self._facet_tags = facet_tags
         self._contact_points = None     # (points, cells) of the contact quadrature, on first use
+        self._table_points = None       # the same for the table's quadrature
         self._build_forms(cell_tags, facet_tags)
         self._build_snes()
 
@@ -133,25 +135,35 @@ class DEAProblem:
         self.contact, self._underside = None, None
         if self.obstacle is not None:
             lay = self.layout
-            h = tip_element_length(sc)
             self.mu_t = dolfinx.fem.Constant(self.mesh, float(self.obstacle.mu_t))
             self.contact = contact.contact_terms(
                 u, self.u_old, v, self.X, self.X_old, self.dt, self.ds_contact,
                 center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
-                edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=sc.contact.penalty_scale * d.youngs_modulus_Pa / h,
+                edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=sc.contact.penalty_N_m3,
                 slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
             energy += self.contact.energy
+        self.table = None
+        if sc.table is not None:
+            tb = sc.table
+            self.ds_table = compat.facet_measure(self.mesh, facet_tags, groups.DEA_CONTACT, tb.quadrature_degree,
+                                                 "gauss_lobatto")
+            self.mu_g = dolfinx.fem.Constant(self.mesh, float(tb.mu_g))
+            self.table = table.table_terms(u, self.u_old, v, self.dt, self.ds_table, height_m=tb.height_m,
+                                           mu=self.mu_g, penalty_N_m3=tb.penalty_N_m3,
+                                           slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
+            energy += self.table.energy
         residual = ufl.derivative(energy, self.w, dw)
         if self.contact is not None:
             residual += self.contact.friction_residual
+        if self.table is not None:
+            residual += self.table.friction_residual
         jacobian = ufl.derivative(residual, self.w, ufl.TrialFunction(self.W))
         self.F_form, self.J_form = compat.form(residual), compat.form(jacobian)
         self.bcs = self._boundary_conditions(facet_tags, cell_tags)
-        if self.contact is not None:
-            clamp = compat.facets_with_tag(facet_tags, groups.CLAMP)
-            self._clamp_rows = [compat.owned_component_dofs(self.W, self.mesh, clamp, i, self.has_parts)
-                                for i in (0, 1)]
-            self._reaction_b = compat.create_vector(self.F_form)
+        clamp = compat.facets_with_tag(facet_tags, groups.CLAMP)
+        self._clamp_rows = [compat.owned_component_dofs(self.W, self.mesh, clamp, i, self.has_parts)
+                            for i in (0, 1)]
+        self._reaction_b = compat.create_vector(self.F_form)
 
         self.tip_area = compat.assemble_scalar(compat.form(1.0 * self.ds_tip), self.comm)
         self.tip_forms = [compat.form(u[i] * self.ds_tip) for i in range(3)]
@@ -160,6 +172,12 @@ class DEAProblem:
         self.volume = compat.assemble_scalar(compat.form(1.0 * self.dx), self.comm)
         if self.contact is not None:
             self.Fx_form, self.Fy_form = compat.form(self.contact.Fx), compat.form(self.contact.Fy)
+            x = ufl.SpatialCoordinate(self.mesh) + u
+            pn = self.contact.pressure
+            self.centre_forms = [compat.form(pn * self.ds_contact)] + [compat.form(pn * x[i] * self.ds_contact)
+                                                                      for i in (0, 2)]
+        if self.table is not None:
+            self.table_forms = (compat.form(self.table.Rx), compat.form(self.table.Ry))
 
     def _boundary_conditions(self, facet_tags, cell_tags):
         clamp = compat.facets_with_tag(facet_tags, groups.CLAMP)
@@ -268,6 +286,8 @@ class DEAProblem:
         """Switch DEA–obstacle friction on or off (off for the initial placement under gravity)."""
         if self.contact is not None:
             self.mu_t.value = float(self.obstacle.mu_t) if on else 0.0
+        if self.table is not None:
+            self.mu_g.value = float(self.scene.table.mu_g) if on else 0.0
 
     def solve(self) -> SolveResult:
         """Newton from the current state; the state is left at the last iterate."""
@@ -315,19 +335,49 @@ class DEAProblem:
         reaction r and its weight W. With the residual R assembled on every row (Dirichlet
         rows not zeroed), r is the sum of R over the clamp rows, and
 
-            Fx = r_x,        Fy = W − r_y       (Fy positive downward)
+            Fx = r_x + R_x,        Fy = W − r_y − R_y       (Fy positive downward)
 
+        with R the table's reaction on the DEA (:meth:`table_reaction`, 0 without a table),
         up to the sum of R over the free rows, i.e. the Newton residual. One vector assembly.
         """
         if self.contact is None:
             return 0.0, 0.0
+        rx, ry = self.clamp_reaction()
+        Rx, Ry = self.table_reaction()
+        return rx + Rx, self.weight() - ry - Ry
+
+    def clamp_reaction(self) -> tuple[float, float]:
+        """(r_x, r_y): force of the clamp on the DEA, N, from the residual assembled on every row
+        (Dirichlet rows not zeroed): the sum of R over the clamp rows. One vector assembly."""
         b = self._reaction_b
         compat.assemble_vector_free(b, self.F_form)
-        rx, ry = (compat.sum_entries(b, rows, self.comm) for rows in self._clamp_rows)
-        weight = (self.scene.dea.density_kg_m3 * self.scene.gravity_m_s2 * float(self.gravity_scale.value)
-                  * self.volume) if self.has_gravity else 0.0
         k = self.symmetry_factor
-        return k * rx, k * (weight - ry)
+        return tuple(k * compat.sum_entries(b, rows, self.comm) for rows in self._clamp_rows)
+
+    def weight(self) -> float:
+        """The DEA's weight at the current gravity scale, N (whole model)."""
+        if not self.has_gravity:
+            return 0.0
+        return (self.symmetry_factor * self.scene.dea.density_kg_m3 * self.scene.gravity_m_s2
+                * float(self.gravity_scale.value) * self.volume)
+
+    def table_reaction(self) -> tuple[float, float]:
+        """(R_x, R_y): force of the table on the DEA, N (R_y upward); (0, 0) without a table."""
+        if self.table is None:
+            return 0.0, 0.0
+        k = self.symmetry_factor
+        return tuple(k * compat.assemble_scalar(f, self.comm) for f in self.table_forms)
+
+    def contact_centre(self) -> tuple[float, float]:
+        """(x, z) of the DEA–obstacle contact: the current positions on the underside weighted by
+        the normal traction (m; z = 0 for a half model, whose mirror image balances it);
+        NaN when nothing touches."""
+        if self.contact is None:
+            return math.nan, math.nan
+        total, mx, mz = (compat.assemble_scalar(f, self.comm) for f in self.centre_forms)
+        if not total > 0:
+            return math.nan, math.nan
+        return mx / total, (0.0 if self.symmetry_factor != 1.0 else mz / total)
 
     def tip_displacement(self) -> np.ndarray:
         """Mean displacement of the free-end face (m)."""
@@ -354,27 +404,54 @@ class DEAProblem:
         local = float(np.max(depth, initial=0.0))
         return self.comm.allreduce(local, op=MPI.MAX)
 
+    def _positions_at(self, which: str) -> np.ndarray:
+        """Current positions (n, 3) of this rank's quadrature points of the obstacle's
+        (``which = "contact"``) or the table's (``"table"``) integral on the underside."""
+        attr = f"_{which}_points"
+        if getattr(self, attr) is None:
+            facets = compat.facets_with_tag(self._facet_tags, groups.DEA_CONTACT)
+            if which == "contact":
+                sc = self.scene.contact
+                degree, rule = sc.quadrature_degree, sc.quadrature_rule
+            else:
+                degree, rule = self.scene.table.quadrature_degree, "gauss_lobatto"
+            setattr(self, attr, compat.facet_quadrature_points(self.mesh, facets, degree, rule))
+            self._u_view = self.w.sub(0) if self.has_parts else self.w
+        points, cells = getattr(self, attr)
+        return points + self._u_view.eval(points, cells) if len(points) else points
+
+    def _obstacle_depth_at_points(self) -> np.ndarray:
+        lay = self.layout
+        x = self._positions_at("contact")
+        if not len(x):
+            return np.zeros(0)
+        rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
+        return -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
+                                                  self.obstacle.edge_radius_m)
+
     def max_penetration_at_points(self) -> float:
         """Largest penetration into the obstacle (m) at the contact integral's own
         quadrature points on the DEA's underside — the only places where the penalty and the
         friction act (``contact.quadrature_degree`` / ``quadrature_rule``)."""
         if self.contact is None:
             return 0.0
-        lay = self.layout
-        if self._contact_points is None:
-            facets = compat.facets_with_tag(self._facet_tags, groups.DEA_CONTACT)
-            sc = self.scene.contact
-            self._contact_points = compat.facet_quadrature_points(self.mesh, facets, sc.quadrature_degree,
-                                                                  sc.quadrature_rule)
-            self._u_view = self.w.sub(0) if self.has_parts else self.w
-        points, cells = self._contact_points
-        local = 0.0
-        if len(points):
-            x = points + self._u_view.eval(points, cells)
-            rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
-            depth = -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
-                                                       self.obstacle.edge_radius_m)
-            local = float(np.max(depth, initial=0.0))
+        local = float(np.max(self._obstacle_depth_at_points(), initial=0.0))
+        return self.comm.allreduce(local, op=MPI.MAX)
+
+    def active_contact_points(self) -> int:
+        """Number of the contact integral's quadrature points that touch the obstacle (penetration
+        > 0: the points that carry Fx and Fy), in the modelled mesh (a half model: its half)."""
+        if self.contact is None:
+            return 0
+        return int(self.comm.allreduce(int(np.count_nonzero(self._obstacle_depth_at_points() > 0)), op=MPI.SUM))
+
+    def table_penetration(self) -> float:
+        """Largest penetration of the DEA's underside into the table (m) at the table integral's
+        quadrature points; 0 without a table."""
+        if self.table is None:
+            return 0.0
+        x = self._positions_at("table")
+        local = float(np.max(self.scene.table.height_m - x[:, 1], initial=0.0)) if len(x) else 0.0
         return self.comm.allreduce(local, op=MPI.MAX)
 
     def mean_volume_change(self) -> float:

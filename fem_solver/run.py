@@ -88,8 +88,9 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
     log.info("%s: %d dofs on %d ranks, coin mass %s", name, problem.num_dofs(), comm.size,
              f"{mass * 1e3:.4f} g" if mass else "-")
     writer = FieldWriter(problem, out_dir / f"{name}_fields.xdmf", fields_every) if fields_every > 0 else None
+    stepper = Stepper(problem, mass, progress=progress, on_step=writer)
     try:
-        records = Stepper(problem, mass, progress=progress, on_step=writer).run()
+        records = stepper.run()
     finally:
         if writer is not None:
             writer.close()
@@ -103,6 +104,11 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         "contact_slip_rate_reg_m_s": scene.contact.slip_rate_regularisation_m_s if scene.coin else "",
         "contact_slip_rate_reg_bias": slip_rate_bias(scene) if scene.coin else "",
         "contact_quadrature": f"{scene.contact.quadrature_rule} degree {scene.contact.quadrature_degree}",
+        "contact_penalty_N_m3": scene.contact.penalty_N_m3 if scene.has_obstacle else "",
+        "contact_min_active_points": scene.contact.min_active_points if scene.has_obstacle else "",
+        "contact_steps_below_min_points": stepper.steps_below_min_points,
+        "table": ("height {height_m:g} m, mu_g {mu_g:g}, penalty {penalty_N_m3:.3g} N/m^3, Gauss-Lobatto degree "
+                  "{quadrature_degree}".format(**vars(scene.table))) if scene.table else "none",
         "mesh_symmetry": scene.mesh.symmetry, "mesh_x_grading": scene.mesh.x_grading,
         "mesh_divisions": "x{n_length} z{n_width} active{n_active} passive{n_passive}".format(**vars(scene.mesh)),
         "solver_linear": scene.solver.linear_solver,

@@ -99,6 +99,12 @@ class StepRecord:
     tip_uz: float
     mean_abs_J_minus_1: float
     volume_change: float
+    n_contact: int
+    contact_x: float
+    contact_z: float
+    table_Rx: float
+    table_Ry: float
+    table_penetration_m: float
     wall_time_s: float
 
 
@@ -147,6 +153,7 @@ class Stepper:
         self.substep_dV = 0.0                  # voltage change over that interval (predictor direction)
         self.line_search = "basic"             # of the Newton solve under way (LINE_SEARCH_RETRY on a retry)
         self.started = False
+        self.steps_below_min_points = 0        # records whose contact had fewer points than the scene asks
         self.tip_move_max_m = MAX_TIP_MOVE_PER_STEP * (problem.scene.dea.active_thickness_m
                                                        + problem.scene.dea.passive_thickness_m)
 
@@ -201,12 +208,17 @@ class Stepper:
         p = self.p
         Fx, Fy = forces
         tip = p.tip_displacement()
+        n_contact = p.active_contact_points()
+        cx, cz = p.contact_centre() if n_contact else (0.0, 0.0)
+        Rx, Ry = p.table_reaction()
         rec = StepRecord(t=t, x=self.coin.x, u=self.coin.u, V=V, dt=dt, Fx=Fx, Fy=Fy, newton_iterations=its,
                          coupling_iterations=coupling_its, cutbacks=cutbacks, penetration_m=p.max_penetration(),
                          penetration_qp_m=p.max_penetration_at_points(),
                          stick=int(self.coin.stick), force_balance_residual_N=residual, tip_ux=tip[0],
                          tip_uy=tip[1], tip_uz=tip[2], mean_abs_J_minus_1=p.mean_volume_change(),
-                         volume_change=p.net_volume_change(),
+                         volume_change=p.net_volume_change(), n_contact=n_contact,
+                         contact_x=cx if math.isfinite(cx) else 0.0, contact_z=cz if math.isfinite(cz) else 0.0,
+                         table_Rx=Rx, table_Ry=Ry, table_penetration_m=p.table_penetration(),
                          wall_time_s=wall)
         values = np.array([v for v in asdict(rec).values()], dtype=float)
         if not np.all(np.isfinite(values)):
@@ -214,6 +226,14 @@ class Stepper:
         return rec
 
     def _keep(self, rec: StepRecord) -> StepRecord:
+        need = self.scene.contact.min_active_points
+        if self.scene.has_obstacle and 0 < rec.n_contact < need:
+            if not self.steps_below_min_points and self.p.comm.rank == 0:
+                log.warning("t = %.4g s: only %d contact point(s) carry the DEA-obstacle contact "
+                            "(contact.min_active_points = %d): the contact patch is not resolved, and the "
+                            "forces depend on the mesh and the rule (docs/fem_accuracy.md)",
+                            rec.t, rec.n_contact, need)
+            self.steps_below_min_points += 1
         if self.on_step is not None:
             self.on_step(len(self.records), rec.t)
         self.records.append(rec)
@@ -482,6 +502,9 @@ class Stepper:
                     dt_uncut = None
         finally:
             bar.close()
+        if self.steps_below_min_points and self.p.comm.rank == 0:
+            log.warning("%d of %d steps had fewer than contact.min_active_points = %d active contact points",
+                        self.steps_below_min_points, len(self.records), self.scene.contact.min_active_points)
         return self.records
 
 

@@ -466,7 +466,7 @@ def section_model(rep: Report) -> Section:
         ("coin centre from the tip", f"{c.center_from_tip_m * 1e3:g} mm toward the clamp", "coin.center_from_tip_m"),
         (f"coin density, μ_t, μ_b (setup {sc.setup})", f"{c.density_kg_m3 / 1e3:g} g/cm³, {c.mu_t:g}, {c.mu_b:g}",
          "coin.density_kg_m3, coin.mu_t, coin.mu_b"),
-        ("contact", f"penalty {sc.contact.penalty_scale:g} E/h, friction regularised at "
+        ("contact", f"penalty {sc.contact.penalty_N_m3:.3g} N/m³, friction regularised at "
          f"{sc.contact.slip_rate_regularisation_m_s:g} m/s", "contact.*"),
         ("mesh", f"{sc.mesh.cell} order {sc.mesh.order}, {sc.mesh.n_length} × {sc.mesh.n_width} × "
          f"({sc.mesh.n_active} + {sc.mesh.n_passive}) cells, level {sc.mesh.level}", "mesh.*"),

@@ -62,8 +62,8 @@ def _specs(base) -> list[Spec]:
     for nu in POISSON_RATIOS[:-1]:
         specs.append(Spec(f"nu{nu:g}-mixed", (f"dea.poisson_ratio={nu!r}",), f"mixed u-p, nu = {nu:g}"))
     for f in PENALTY_FACTORS:
-        specs.append(Spec(f"penalty-x{f:g}", (f"contact.penalty_scale={base.contact.penalty_scale * f!r}",),
-                          f"contact penalty x{f:g} the scene's ({base.contact.penalty_scale * f:g} E/h)"))
+        specs.append(Spec(f"penalty-x{f:g}", (f"contact.penalty_N_m3={base.contact.penalty_N_m3 * f!r}",),
+                          f"contact penalty x{f:g} the scene's ({base.contact.penalty_N_m3 * f:.3g} N/m^3)"))
     for scene in ("free_bending", "coin_pull"):
         specs.append(Spec(f"pullin-{scene.replace('_', '-')}", (f"load.voltage_max_V={PULL_IN_V!r}",),
                           f"{scene}: 0 -> {PULL_IN_V:g} V, far beyond pull-in", INSTABILITY, scene))

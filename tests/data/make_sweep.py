@@ -42,7 +42,7 @@ SETUPS = [f"C{i}" for i in range(1, 9)]
 #: surrogate tests' figures were set on these)
 OVERRIDES = ("mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004",
              "contact.slip_rate_regularisation_m_s=1e-4", "time.placement_first_step=1.0",
-             "contact.quadrature_degree=4")
+             "contact.quadrature_degree=4", "contact.penalty_N_m3=1120000000.0", "table.height_m=-1.0")
 #: what every fixture file keeps: the surrogate's variables (deapull.surrogate.data.VARIABLES)
 TRIMMED = ("t", "x", "u", "V", "dt", "Fx", "Fy")
 #: the setups that keep every variable

@@ -14,10 +14,12 @@ from tests.conftest import DATA
 #: --set mesh.coin_size_m=0.004)
 #: (pinned to the discretisation the fixture was made with: the full model, MUMPS, the
 #: friction regularisation eps_v = 1e-4 m/s and the placement's first try at full gravity,
-#: the defaults before 2026-11-23)
+#: the defaults before 2026-11-23; its penalty 10 E / h_tip = 1.12e9 N/m^3 on this 8-element mesh;
+#: the table, which the fixture did not have, 1 m down where nothing reaches it)
 C3_TEST = ("mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004", "mesh.symmetry='none'",
            "solver.linear_solver='mumps'", "contact.slip_rate_regularisation_m_s=1e-4",
-           "time.placement_first_step=1.0", "contact.quadrature_degree=4")
+           "time.placement_first_step=1.0", "contact.quadrature_degree=4", "contact.penalty_N_m3=1120000000.0",
+           "table.height_m=-1.0")
 #: the records of that run as the code before the stepping API wrote them (every variable)
 C3_REFERENCE = DATA / "sweep" / "C3.nc"
 

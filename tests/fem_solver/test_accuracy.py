@@ -98,7 +98,7 @@ def test_uniform_pressure_patch_gives_pressure_times_area(tmp_path, sym):
                      "stop.center_from_tip_m=0.02", f"mesh.symmetry='{sym}'")
     depth = 2e-6
     _press(p, depth)
-    kn = sc.contact.penalty_scale * sc.dea.youngs_modulus_Pa / tip_element_length(sc)
+    kn = sc.contact.penalty_N_m3
     Fx, Fy = p.obstacle_forces()
     assert Fy == pytest.approx(kn * depth * sc.dea.length_m * sc.dea.width_m, rel=1e-9)
     assert abs(Fx) < 1e-12
@@ -122,7 +122,7 @@ def disc_patch(tmp_path_factory):
     V = dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", 2))
     u, lay, depth = dolfinx.fem.Function(V), layout(sc), 2e-6
     u.x.array[1::3] = -(lay.y_bottom_m - lay.obstacle_top_y_m) - depth
-    kn = sc.contact.penalty_scale * sc.dea.youngs_modulus_Pa / tip_element_length(sc)
+    kn = sc.contact.penalty_N_m3
     zero, one = dolfinx.fem.Constant(mesh, 0.0), dolfinx.fem.Constant(mesh, 1.0)
     exact = kn * depth * math.pi * sc.stop.radius_m ** 2
     err = {}
@@ -170,4 +170,4 @@ def test_x_grading_puts_the_small_elements_at_the_free_end(tmp_path):
     assert len(lengths) == 4 and np.isclose(x[0], -sc.dea.length_m)
     assert lengths[-1] / lengths[0] == pytest.approx(8.0, rel=1e-6)    # clamp / tip
     assert np.all(np.diff(lengths) > 0)
-    assert tip_element_length(sc) == pytest.approx(lengths[0], rel=1e-6)  # the penalty's h
+    assert tip_element_length(sc) == pytest.approx(lengths[0], rel=1e-6)  # the tip element
