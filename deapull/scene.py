@@ -127,7 +127,7 @@ class Table:
     stands on the same plane (y = 0). Not the load protocol's ``table`` of (t, V) points."""
     height_m: float = _num(0.0, doc="y of the table's top face (the coin stands on y = 0)")
     mu_g: float = _nonneg(0.0, "Coulomb friction DEA-table")
-    penalty_N_m3: float = _pos(1e10, "normal penalty of the DEA-table contact (N/m^3: pressure per metre "
+    penalty_N_m3: float = _pos(1e11, "normal penalty of the DEA-table contact (N/m^3: pressure per metre "
                                      "of penetration)")
     quadrature_degree: int = _num(6, lo=0, integer=True, doc="quadrature degree of the DEA-table integrals "
                                                             "(Gauss-Lobatto points: they include the corners)")
@@ -226,6 +226,13 @@ class Mesh:
     x_grading: float = _num(1.0, lo=1.0, lo_open=False, hi=20.0,
                             doc="ratio of the element length at the clamp to the one at the free end (>= 1; "
                                 "1 = uniform; > 1 refines toward the tip and the coin)")
+    tip_zone_m: float = _nonneg(0.0, "length (x) of the tip zone from the free end, meshed with its own uniform "
+                                     "tip_zone_divisions (0: no tip zone); n_length and x_grading mesh the rest")
+    tip_zone_divisions: int = _num(4, lo=0, integer=True, doc="divisions along x of the tip zone")
+    rim_band_m: tuple = _floats("[a, b]: the band a <= |z| <= b where the tip's free edge crosses the coin's rim "
+                                "(the coin's contact patch), meshed with rim_band_divisions across ([]: no band); "
+                                "n_width sets the rest of the width by length")
+    rim_band_divisions: int = _num(4, lo=0, integer=True, doc="divisions across the rim band (each side)")
 
 
 @dataclass(frozen=True)
@@ -255,7 +262,7 @@ class Scene:
         for name, cls in SECTIONS.items():
             sec = getattr(self, name)
             if sec is not None:
-                out[name] = dataclasses.asdict(sec)
+                out[name] = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(sec).items()}
         out["scene"]["default_setup"] = ""  # setups are already applied
         load = out["load"]
         load["table_t_s"], load["table_V"] = list(load["table_t_s"]), list(load["table_V"])
@@ -429,6 +436,12 @@ def _check_consistency(scene: Scene) -> None:
                              f"< {name}.height_m")
     if scene.coin is not None and scene.stop is not None:
         raise SceneError("[coin] and [stop]: a scene has at most one of them")
+    m = scene.mesh
+    if m.tip_zone_m and not m.tip_zone_m < d.length_m / 2:
+        raise SceneError(f"mesh.tip_zone_m = {m.tip_zone_m!r}: must be < half of dea.length_m = {d.length_m!r}")
+    if m.rim_band_m and not (len(m.rim_band_m) == 2 and 0 < m.rim_band_m[0] < m.rim_band_m[1] < d.width_m / 2):
+        raise SceneError(f"mesh.rim_band_m = {list(m.rim_band_m)!r}: expected [a, b] with 0 < a < b < "
+                         f"dea.width_m / 2 = {d.width_m / 2!r}, or []")
     if scene.table is not None and scene.table.height_m >= layout_bottom(scene):
         raise SceneError(f"table.height_m = {scene.table.height_m!r}: must be below the clamped DEA's underside "
                          f"(y = {layout_bottom(scene)!r})")

@@ -72,36 +72,87 @@ def _x_progression(scene: Scene, curve: int, count: int) -> float:
     return r if start[0] < -scene.dea.length_m / 2 else 1.0 / r
 
 
+def x_intervals(scene: Scene) -> list[tuple[float, float, int, bool]]:
+    """The DEA's x intervals as (x0, x1, divisions, graded): the tip zone ``mesh.tip_zone_m``
+    from the free end with its own uniform ``mesh.tip_zone_divisions`` (× 2^level), and the
+    rest with ``mesh.n_length`` (× 2^level; graded by ``mesh.x_grading``); one interval without
+    a tip zone."""
+    m, L = scene.mesh, scene.dea.length_m
+    k = 2 ** m.level
+    if not m.tip_zone_m:
+        return [(-L, 0.0, m.n_length * k, True)]
+    return [(-L, -L + m.tip_zone_m, m.tip_zone_divisions * k, False), (-L + m.tip_zone_m, 0.0, m.n_length * k, True)]
+
+
+def z_intervals(scene: Scene) -> list[tuple[float, float, int]]:
+    """The modelled width's z intervals as (z0, z1, divisions): without ``mesh.rim_band_m`` one
+    interval with the width's divisions; with a band (|z| in [a, b], where the tip crosses the
+    coin's rim) the band gets ``mesh.rim_band_divisions`` and the pieces beside it their share
+    of ``mesh.n_width`` by length (at least 1), all × 2^level, mirrored for the full model."""
+    m = scene.mesh
+    k = 2 ** m.level
+    zmin, zmax = _z_range(scene)
+    if not m.rim_band_m:
+        return [(zmin, zmax, _divisions(scene)["z"])]
+    a, b = m.rim_band_m
+    half = scene.dea.width_m / 2
+    per_m = m.n_width / (2 * half)
+
+    def share(length):
+        return max(1, round(per_m * length)) * k
+
+    right = [(0.0, a, share(a)), (a, b, m.rim_band_divisions * k), (b, half, share(half - b))]
+    if m.symmetry == "half_z":
+        return right
+    left = [(-z1, -z0, n) for z0, z1, n in reversed(right)]
+    inner = [(-a, a, share(2 * a))]
+    return left[:2] + inner + right[1:]
+
+
 def _add_dea(scene: Scene) -> dict:
-    """Add the two DEA layers; return the volume tags by name."""
+    """Add the two DEA layers, each cut into boxes at the x and z intervals (tip zone, rim band);
+    return the volume tags by layer name."""
     lay = layout(scene)
     occ = gmsh.model.occ
-    L = lay.length_m
-    z0, z1 = _z_range(scene)
-    tags = {}
+    boxes = {}
     for name, (y0, y1) in (("active", lay.active_y_m), ("passive", lay.passive_y_m)):
-        tags[name] = occ.addBox(-L, y0, z0, L, y1 - y0, z1 - z0)
-    _, pieces = occ.fragment([(3, tags["active"])], [(3, tags["passive"])])
+        boxes[name] = [occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0)
+                       for x0, x1, _, _ in x_intervals(scene) for z0, z1, _ in z_intervals(scene)]
+    objects = [(3, t) for t in boxes["active"]]
+    tools = [(3, t) for t in boxes["passive"]]
+    _, pieces = occ.fragment(objects, tools)
     occ.synchronize()
-    return {"active": pieces[0][0][1], "passive": pieces[1][0][1]}
+    out = {"active": [], "passive": []}
+    for (dim, tag), children in zip(objects + tools, pieces):
+        out["active" if (dim, tag) in objects else "passive"] += [t for _, t in children]
+    return out
 
 
 def _structure_dea(scene: Scene, vols: dict) -> None:
     """Transfinite curves, surfaces and volumes on the DEA boxes (and nothing else)."""
     lay = layout(scene)
     n = _divisions(scene)
-    volumes = [(3, t) for t in vols.values()]
+    xs, zs = x_intervals(scene), z_intervals(scene)
+
+    def interval(lo, hi, intervals):
+        for iv in intervals:
+            if abs(iv[0] - lo) < _TOL and abs(iv[1] - hi) < _TOL:
+                return iv
+        raise RuntimeError(f"curve [{lo}, {hi}] matches no mesh interval")
+
+    volumes = [(3, t) for tags in vols.values() for t in tags]
     surfaces = sorted({abs(t) for _, t in gmsh.model.getBoundary(volumes, combined=False, oriented=False)})
     curves = sorted({abs(t) for _, t in gmsh.model.getBoundary([(2, s) for s in surfaces], combined=False,
                                                                 oriented=False)})
     for c in curves:
         x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, c)
         if x1 - x0 > _TOL:
-            count = n["x"]
-            gmsh.model.mesh.setTransfiniteCurve(c, count + 1, "Progression", _x_progression(scene, c, count))
+            _, _, count, graded = interval(x0, x1, xs)
+            progression = _x_progression(scene, c, count) if graded else 1.0
+            gmsh.model.mesh.setTransfiniteCurve(c, count + 1, "Progression", progression)
             continue
         elif z1 - z0 > _TOL:
-            count = n["z"]
+            count = interval(z0, z1, zs)[2]
         else:
             in_active = lay.active_y_m[0] - _TOL <= y0 and y1 <= lay.active_y_m[1] + _TOL
             count = n["active"] if in_active else n["passive"]
@@ -131,9 +182,10 @@ def _tag_groups(scene: Scene, vols: dict, coin_tag) -> None:
     def add(dim, entities, tag, name):
         gmsh.model.addPhysicalGroup(dim, entities, tag)
         gmsh.model.setPhysicalName(dim, tag, name)
-    for name, tag in vols.items():
-        add(3, [tag], groups.VOLUMES[name], name)
-    dea_faces = {abs(t) for _, t in gmsh.model.getBoundary([(3, t) for t in vols.values()], combined=False,
+    for name, tags in vols.items():
+        add(3, tags, groups.VOLUMES[name], name)
+    dea_faces = {abs(t) for _, t in gmsh.model.getBoundary([(3, t) for ts in vols.values() for t in ts],
+                                                            combined=False,
                                                             oriented=False)}
 
     def dea_box(*box):

@@ -94,3 +94,38 @@ def test_dolfinx_reads_under_mpirun(tiny_scene, tmp_path):
     assert proc.returncode == 0, proc.stderr
     n = summary["groups"]["active"]["cells"] + summary["groups"]["passive"]["cells"]
     assert f"CELLS {n} SIZE 2 TAGS [11, 12, 13, 14, 17]" in proc.stdout      # 17: the half model's mid-plane
+
+
+@pytest.mark.parametrize("sym", ["half_z", "none"])
+def test_tip_zone_and_rim_band_refine_where_the_tip_crosses_the_rim(tmp_path, sym):
+    """The contact patch's own mesh: a 2 mm tip zone in 4 divisions and the band 3 <= |z| <= 5 mm
+    in 4 per side give 0.5 x 0.5 mm underside facets there; the volumes are the same."""
+    import dolfinx
+    from mpi4py import MPI
+    from deapull.fem_solver.compat import facets_with_tag, read_mesh
+    sc = scenes.load("coin_pull", overrides=(f"mesh.symmetry='{sym}'", "mesh.tip_zone_m=0.002",
+                                             "mesh.tip_zone_divisions=4", "mesh.rim_band_m=[0.003, 0.005]",
+                                             "mesh.rim_band_divisions=4"))
+    path, summary = write_mesh(sc, tmp_path)
+    half = sym == "half_z"
+    # x: 4 + 16; z (half): 1 inside 3 mm, 4 in the band, 1 outside; full: mirrored, 1 across the middle
+    across = 6 if half else 11
+    assert summary["groups"]["dea_contact"]["cells"] == 20 * across
+    d = sc.dea
+    assert summary["groups"]["active"]["volume_m3"] == pytest.approx(
+        d.length_m * d.width_m / (2 if half else 1) * d.active_thickness_m, rel=1e-9)
+    mesh, _, ft = read_mesh(path, MPI.COMM_WORLD)
+    facets = facets_with_tag(ft, groups.DEA_CONTACT)
+    mid = dolfinx.mesh.compute_midpoints(mesh, 2, facets)
+    patch = (mid[:, 0] < -d.length_m + 0.002) & (np.abs(mid[:, 2]) > 0.003) & (np.abs(mid[:, 2]) < 0.005)
+    assert patch.sum() == 16 * (1 if half else 2)
+    geom = dolfinx.cpp.mesh.entities_to_geometry(mesh._mesh, 2, facets[patch], False)
+    corners = mesh.geometry.x[geom[:, :4]]
+    assert np.allclose(np.ptp(corners[:, :, 0], axis=1), 5e-4) and np.allclose(np.ptp(corners[:, :, 2], axis=1), 5e-4)
+
+
+def test_a_rim_band_outside_the_width_names_the_key():
+    with pytest.raises(scenes.SceneError, match=r"mesh\.rim_band_m = \[0\.003, 0\.02\]"):
+        scenes.load("coin_pull", overrides=("mesh.rim_band_m=[0.003, 0.02]",))
+    with pytest.raises(scenes.SceneError, match=r"mesh\.tip_zone_m = 0\.03"):
+        scenes.load("coin_pull", overrides=("mesh.tip_zone_m=0.03",))
