@@ -4,9 +4,11 @@ from __future__ import annotations
 import sys
 
 from deapull.workflows.args import add_scene_args, load_scene, names
+from deapull.workflows.sweep import format_table, sweep
 
 
 def cmd_solve(args) -> int:
+    # lazy: MPI and dolfinx load only when this command runs (the CLI starts without them)
     from mpi4py import MPI
 
     from deapull.fem_solver.run import solve_scene
@@ -24,9 +26,8 @@ def cmd_solve(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from mpi4py import MPI
+    from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
 
-    from deapull.workflows.sweep import format_table, sweep
     setups = names(args.setups)
     rows = sweep(args.scene, setups, args.out, MPI.COMM_WORLD, args.ranks_per_setup, args.overrides, args.protocols)
     if MPI.COMM_WORLD.rank == 0:

@@ -8,14 +8,19 @@ bad input raises :class:`deapull.errors.InputError` (a ``ValueError``), which th
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
+
+from deapull.errors import InputError
+from deapull.io import write_json
+
+# lazy, in every command below: the surrogate modules load torch, which the CLI starts without
 
 
 def _config(args, kind: str):
     import torch
 
     from deapull.surrogate.train import TrainConfig
-    from deapull.errors import InputError
     if args.threads < 1:
         raise InputError(f"--threads {args.threads} must be at least 1")
     torch.set_num_threads(args.threads)
@@ -39,7 +44,6 @@ def cmd_train(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from deapull.io import write_json
     from deapull.surrogate import store
     from deapull.surrogate.data import load_setup
     from deapull.surrogate.evaluate import evaluate, format_table
@@ -60,7 +64,6 @@ def cmd_experiments(args) -> int:
     from deapull.surrogate import experiments
     from deapull.surrogate.data import parse_setups
     from deapull.surrogate.models import KINDS
-    from deapull.errors import InputError
     kinds = parse_setups(args.models) if args.models else list(KINDS)
     try:
         sets = [int(s) for s in args.sets.split(",") if s.strip()]
@@ -85,7 +88,6 @@ def cmd_experiments_protocols(args) -> int:
     rows = pe.run(args.data, args.out, _config(args, "f"), excitation_dir=args.excitation, kinds=kinds, design=design)
     ramp_csv = Path(args.ramp_results) / "experiments.csv" if args.ramp_results else None
     if ramp_csv is not None and ramp_csv.is_file():
-        import csv
         with ramp_csv.open() as fh:
             ramp_rows = [_typed(r) for r in csv.DictReader(fh)]
         ramp_kinds = [k for k in dict.fromkeys(r["model"] for r in ramp_rows)]

@@ -252,7 +252,7 @@ MD_COLUMNS = (("rung", "case", ""), ("elements", "elements", ""), ("ν", "poisso
 
 def plot_pareto(rows, path: Path) -> None:
     """Log–log error against wall time, Pareto fronts joined, default and reference marked."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib loads only for the plot
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     panels = (("error_pct", "on_pareto", "error: max(MAE x / travel, MAE Fy / max Fy) [%]"),
