@@ -8,11 +8,10 @@ from deapull.workflows.sweep import format_table, sweep
 
 
 def cmd_solve(args) -> int:
-    # lazy: MPI and dolfinx load only when this command runs (the CLI starts without them)
-    from mpi4py import MPI
+    from mpi4py import MPI  # lazy: importing mpi4py initialises MPI
 
-    from deapull.fem_solver.run import solve_scene
-    from deapull.fem_solver.stepping import SolveFailed
+    from deapull.fem_solver.run import solve_scene  # lazy: dolfinx
+    from deapull.fem_solver.stepping import SolveFailed  # lazy: dolfinx
     scene = load_scene(args)
     try:
         path = solve_scene(scene, args.out, MPI.COMM_WORLD, fields_every=args.fields_every)

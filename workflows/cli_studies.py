@@ -18,7 +18,7 @@ def cmd_fidelity(args) -> int:
     extra = None
     if args.surrogate:   # models and their dataset are checked before any FEM work
         from deapull.surrogate.data import load_setup  # lazy: torch loads only with --surrogate
-        from deapull.workflows import ladder
+        from deapull.workflows import ladder  # lazy: torch
         setup = scenes.load(args.scene, setup=args.setup, overrides=args.overrides).setup
         models = ladder.load_models(args.surrogate)
         load_setup(Path(args.surrogate_data) / f"{setup}.nc")

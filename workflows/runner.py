@@ -176,9 +176,9 @@ def solve_case(case: Case, scene, out_dir: Path, comm, progress: bool, run_dir: 
     """Solve one case into ``run_dir`` (default ``<out>/cases/<name>/``) as ``<name>.nc`` (default
     the setup's or scene's name); a failed or crashed solve becomes a result that says so (its
     accepted steps in ``<out>/cases/<name>/partial.nc``)."""
-    # lazy: dolfinx loads only when a case is solved (setting up a study and reading results need no FEniCSx)
-    from deapull.fem_solver.run import solve_scene
-    from deapull.fem_solver.stepping import SolveFailed, as_arrays
+    # lazy (dolfinx): setting up a study and reading its results need no FEniCSx
+    from deapull.fem_solver.run import solve_scene  # lazy: dolfinx
+    from deapull.fem_solver.stepping import SolveFailed, as_arrays  # lazy: dolfinx
     run_dir = case_dir(out_dir, case.name) if run_dir is None else Path(run_dir)
     start = time.perf_counter()
     try:
