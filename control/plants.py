@@ -143,28 +143,24 @@ class FEMPlant:
     def __init__(self, scene, work_dir: str | Path | None = None, name: str = "fem", dt: float = DT_S):
         if scene.coin is None:
             raise InputError(f"scene {scene.scene.name!r} has no [coin]: the FEM plant needs one")
-        from mpi4py import MPI
+        from mpi4py import MPI  # lazy: dolfinx and MPI load only when a FEM plant is built
 
-        from deapull.fem_solver import compat
-        from deapull.fem_solver.run import coin_mass, mesh_scene
+        from deapull.fem_solver.simulation import Simulation
         self.scene, self.name, self.dt = scene, name, float(dt)
         self.comm = MPI.COMM_SELF
         if work_dir is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="deapull-fem-plant-")
             work_dir = self._tmp.name
-        mesh_path, self.mesh_summary = mesh_scene(scene, Path(work_dir) / "mesh", self.comm)
-        self._mesh = compat.read_mesh(mesh_path, self.comm)
-        self.mass_kg = coin_mass(mesh_path, scene, self.comm)
+        self.simulation = Simulation.from_scene(scene, mesh_dir=Path(work_dir) / "mesh", comm=self.comm)
+        self.mesh_summary, self.mass_kg = self.simulation.mesh_summary, self.simulation.mass_kg
         self.truth = Phi(mass_kg=self.mass_kg, mu_b=scene.coin.mu_b, mu_t=scene.coin.mu_t)
         self.stepper = None
         self.t, self.V = 0.0, 0.0
         self.last_record = None
 
     def reset(self, seed: int | None = None) -> np.ndarray:
-        from deapull.fem_solver.problem import DEAProblem
-        from deapull.fem_solver.stepping import SolveFailed, Stepper
-        mesh, cell_tags, facet_tags = self._mesh
-        self.stepper = Stepper(DEAProblem(self.scene, mesh, cell_tags, facet_tags), self.mass_kg, progress=False)
+        from deapull.fem_solver.stepping import SolveFailed
+        self.stepper = self.simulation.stepper(progress=False)
         try:
             return self._keep(self.stepper.start(0.0))
         except SolveFailed as err:

@@ -13,6 +13,12 @@ output (:mod:`deapull.io`). The stages are its sub-packages, each importing only
     deapull.meshing     gmsh meshes                         (meshing/)
     deapull.scene, .dataset, .errors, .io, .provenance      (deapull/)
 
-``tests/test_layers.py`` runs the import-linter contract of ``.importlinter`` that keeps it so.
+``tests/deapull/test_layers.py`` runs the import-linter contract of ``pyproject.toml`` that
+keeps it so, and the check that no modules import each other in a circle
+(``scripts/check_layers.py``). Each package names its public API in ``__all__``; this one's
+is its modules.
 """
+from deapull import dataset, errors, io, protocol, provenance, scene
+
 __version__ = "0.1.0"
+__all__ = ["__version__", "dataset", "errors", "io", "protocol", "provenance", "scene"]

@@ -98,7 +98,7 @@ class DatasetError(InputError):
 def build(columns: Mapping[str, Sequence[float]], attrs: Mapping[str, object]):
     """The xarray Dataset of one run from its step columns; refuses a missing, extra or
     non-finite variable. ``complete = 1`` is set."""
-    import xarray as xr
+    import xarray as xr  # lazy: xarray loads pandas; `import deapull` and readers of the contract alone skip it
     missing = [n for n in VARIABLES if n not in columns]
     extra = [n for n in columns if n not in VARIABLES]
     if missing or extra:
@@ -132,7 +132,7 @@ def write(ds, path: str | os.PathLike) -> Path:
 def is_complete(path: str | os.PathLike, scene_toml: str | None = None) -> bool:
     """True when ``path`` is a readable dataset marked complete with the required variables
     (and, given ``scene_toml``, made with that resolved scene: its ``scene_toml`` attribute)."""
-    import xarray as xr
+    import xarray as xr  # lazy: xarray loads pandas; `import deapull` and readers of the contract alone skip it
     path = Path(path)
     if not path.is_file():
         return False
@@ -189,7 +189,7 @@ def read(path: str | os.PathLike, variables: Sequence[str] = REQUIRED, min_steps
         missing, has other dimensions than ``(step,)``, declares other units than the
         contract's or holds a non-finite value, or the run is shorter than ``min_steps``.
     """
-    import xarray as xr
+    import xarray as xr  # lazy: xarray loads pandas; `import deapull` and readers of the contract alone skip it
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: no such dataset file")

@@ -90,10 +90,6 @@ class Protocol:
 
     __call__ = voltage
 
-    @property
-    def initial_voltage(self) -> float:
-        return self.voltage(0.0)
-
     def kinks(self) -> np.ndarray:
         """Times in (0, end) where dV/dt jumps (the inner knots)."""
         t = np.asarray(self.knots_t, dtype=float)

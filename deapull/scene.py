@@ -54,10 +54,6 @@ def _text(default, doc=""):
     return field(default=default, metadata=dict(kind="str", doc=doc))
 
 
-def _flag(default, doc=""):
-    return field(default=default, metadata=dict(kind="bool", doc=doc))
-
-
 def _floats(doc=""):
     return field(default=(), metadata=dict(kind="floats", doc=doc))
 
@@ -289,8 +285,8 @@ def _allowed(meta) -> str:
         return "one of " + ", ".join(repr(c) for c in meta["choices"])
     if kind == "floats":
         return "a list of finite numbers"
-    if kind in ("str", "bool"):
-        return f"a {kind}"
+    if kind == "str":
+        return "a str"
     parts = ["an integer" if kind == "int" else "a finite number"]
     if meta["lo"] is not None:
         parts.append(f"{'>' if meta['lo_open'] else '>='} {meta['lo']:g}")
@@ -315,10 +311,6 @@ def _check_value(key: str, value, meta):
                 isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
             raise bad
         return tuple(float(v) for v in value)
-    if kind == "bool":
-        if not isinstance(value, bool):
-            raise bad
-        return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise bad
     if kind == "int":

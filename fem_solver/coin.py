@@ -24,19 +24,19 @@ class CoinState:
     stick: bool = True
 
 
-def coulomb_step(state: CoinState, Fx: float, Fy: float, dt: float, mass: float, mu_b: float,
+def coulomb_step(state: CoinState, Fx: float, Fy: float, dt: float, mass_kg: float, mu_b: float,
                  g: float) -> CoinState:
     """Advance the coin by ``dt`` under the DEA's force (Fx, Fy) and ground friction."""
-    normal = max(mass * g + Fy, 0.0)
-    trial = mass * state.u + dt * Fx
+    normal = max(mass_kg * g + Fy, 0.0)
+    trial = mass_kg * state.u + dt * Fx
     cap = dt * mu_b * normal
     if abs(trial) <= cap:
         return CoinState(state.x, 0.0, True)
-    u = (trial - math.copysign(cap, trial)) / mass
+    u = (trial - math.copysign(cap, trial)) / mass_kg
     return CoinState(state.x + dt * u, u, False)
 
 
-def force_balance_residual(prev: CoinState, new: CoinState, Fx: float, Fy: float, dt: float, mass: float,
+def force_balance_residual(prev: CoinState, new: CoinState, Fx: float, Fy: float, dt: float, mass_kg: float,
                            mu_b: float, g: float) -> float:
     """The coin's momentum balance over a step from ``prev`` to ``new`` under the force
     (Fx, Fy) of the DEA (N); 0 when the balance holds::
@@ -49,8 +49,8 @@ def force_balance_residual(prev: CoinState, new: CoinState, Fx: float, Fy: float
     it the DEA's force from the clamp reaction (``DEAProblem.obstacle_forces_from_reaction``),
     which does not pass through the contact integral the coupling uses.
     """
-    normal = max(mass * g + Fy, 0.0)
-    inertia = mass * (new.u - prev.u) / dt if dt > 0 else 0.0
+    normal = max(mass_kg * g + Fy, 0.0)
+    inertia = mass_kg * (new.u - prev.u) / dt if dt > 0 else 0.0
     if new.stick:
         friction = Fx - inertia  # static friction takes whatever balances, if within the cone
         return max(abs(friction) - mu_b * normal, 0.0)

@@ -5,8 +5,10 @@ named tuple, ``create_matrix`` signatures …) should only touch this module.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import basix
 import dolfinx
 import dolfinx.fem.petsc
 import gmsh
@@ -14,29 +16,50 @@ import numpy as np
 import ufl
 from dolfinx.io import gmshio
 from mpi4py import MPI
+from petsc4py import PETSc
 
-from deapull.meshing import groups
 from deapull.errors import InputError
+from deapull.meshing import groups
 
 
 class MeshFileError(InputError):
     """A mesh file that is missing or lacks the groups the solver needs."""
 
 
+@dataclass
+class SceneMesh:
+    """A scene's ``.msh`` as read once: the DEA mesh for dolfinx, and the volume of each
+    separately measured group (``volumes_m3``, e.g. the coin's, for its mass)."""
+    mesh: dolfinx.mesh.Mesh
+    cell_tags: dolfinx.mesh.MeshTags
+    facet_tags: dolfinx.mesh.MeshTags
+    volumes_m3: dict = field(default_factory=dict)
+
+
 def read_mesh(path: str | Path, comm=MPI.COMM_WORLD, volumes=groups.DEA_VOLUMES):
     """Read the named volume groups of a scene ``.msh`` into dolfinx, with their tags.
-
-    Rank 0 reads the file with gmsh and keeps the cells of ``volumes`` and the tagged
-    facets that lie on them (gmsh's own ``removePhysicalGroups`` fails on merged files
-    in gmsh 4.8, so the selection is done on the arrays); dolfinx then distributes the
-    mesh over ``comm``.
 
     Returns
     -------
     (mesh, cell_tags, facet_tags)
     """
+    read = read_scene_mesh(path, comm, volumes, measured=())
+    return read.mesh, read.cell_tags, read.facet_tags
+
+
+def read_scene_mesh(path: str | Path, comm=MPI.COMM_WORLD, volumes=groups.DEA_VOLUMES,
+                    measured=("coin",)) -> SceneMesh:
+    """Read a scene ``.msh`` once: the cells of ``volumes`` with their tags into dolfinx, and
+    the volume of each group of ``measured`` that the file has (assembled by dolfinx on the
+    group's own mesh, of the file's element order: the curved coin rim counts).
+
+    Rank 0 reads the file with gmsh and keeps the cells of ``volumes`` and the tagged
+    facets that lie on them (gmsh's own ``removePhysicalGroups`` fails on merged files
+    in gmsh 4.8, so the selection is done on the arrays); dolfinx then distributes the
+    meshes over ``comm``.
+    """
     path = Path(path)
-    data, error = None, None
+    data, error, extra = None, None, {}
     if comm.rank == 0:
         if not path.is_file():
             error = "not found (run `deapull mesh` first)"
@@ -46,11 +69,23 @@ def read_mesh(path: str | Path, comm=MPI.COMM_WORLD, volumes=groups.DEA_VOLUMES)
             try:
                 gmsh.merge(str(path))
                 data, error = _extract(volumes)
+                present = {groups.NAMES.get(tag) for _, tag in gmsh.model.getPhysicalGroups(3)}
+                extra = {name: _extract((name,))[0] for name in measured if name in present}
             finally:
                 gmsh.finalize()
     error = comm.bcast(error, root=0)
     if error:
         raise MeshFileError(f"mesh file {str(path)!r}: {error}")
+    mesh, ct, ft = _distribute(data, comm)
+    volumes_m3 = {}
+    for name in comm.bcast(sorted(extra), root=0):
+        part, _, _ = _distribute(extra.get(name), comm)
+        volumes_m3[name] = assemble_scalar(form(1.0 * ufl.dx(domain=part)), comm)
+    return SceneMesh(mesh, ct, ft, volumes_m3)
+
+
+def _distribute(data, comm):
+    """The dolfinx mesh and its (cell, facet) tags from :func:`_extract`'s arrays on rank 0."""
     cell_id, n_nodes, facet_nodes = comm.bcast(data[:3] if comm.rank == 0 else None, root=0)
     if comm.rank == 0:
         x, cells, cell_values, facets, facet_values = data[3:]
@@ -213,7 +248,6 @@ def assemble_residual(b, compiled_F, compiled_J, bcs, x, lifting=True):
     homogeneous and the state already satisfies it (the clamp), and it saves an element-
     matrix pass over the cells next to the bcs in every residual evaluation.
     """
-    from petsc4py import PETSc
     with b.localForm() as loc:
         loc.set(0.0)
     dolfinx.fem.petsc.assemble_vector(b, compiled_F)
@@ -226,7 +260,6 @@ def assemble_residual(b, compiled_F, compiled_J, bcs, x, lifting=True):
 def assemble_vector_free(b, compiled_F):
     """b = F(x) on every row, the Dirichlet rows included (their entries are the reactions);
     owned entries complete (ghost contributions added)."""
-    from petsc4py import PETSc
     with b.localForm() as loc:
         loc.set(0.0)
     dolfinx.fem.petsc.assemble_vector(b, compiled_F)
@@ -296,7 +329,6 @@ def facet_quadrature_points(mesh, facets, degree, rule="gauss"):
     The facets are mapped by their vertices (bilinear on quadrilaterals, affine on
     triangles): exact for the flat, straight-edged facets of the DEA's underside.
     """
-    import basix
     tdim = mesh.topology.dim
     facets = np.asarray(facets, dtype=np.int32)
     mesh.topology.create_connectivity(tdim - 1, tdim)

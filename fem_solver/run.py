@@ -1,4 +1,5 @@
-"""One scene, end to end: mesh → dolfinx → time stepping → dataset (and optional XDMF fields)."""
+"""One scene, end to end: :class:`~deapull.fem_solver.simulation.Simulation` (mesh, problem,
+stepper) → time stepping → dataset (and optional XDMF fields)."""
 from __future__ import annotations
 
 import logging
@@ -6,14 +7,12 @@ import math
 import time
 from pathlib import Path
 
-import ufl
 from mpi4py import MPI
 
 from deapull import dataset, provenance
 from deapull.fem_solver import compat
-from deapull.fem_solver.problem import DEAProblem
-from deapull.fem_solver.stepping import Stepper, as_arrays, coin_motion, coin_travel
-from deapull.meshing.build import write_mesh
+from deapull.fem_solver.simulation import Simulation
+from deapull.fem_solver.stepping import as_arrays, coin_motion, coin_travel
 
 log = logging.getLogger(__name__)
 
@@ -21,19 +20,6 @@ log = logging.getLogger(__name__)
 def run_name(scene) -> str:
     """File stem of a run: the setup (C3) or the scene name."""
     return scene.setup or scene.scene.name
-
-
-def mesh_scene(scene, out_dir: Path, comm) -> tuple[Path, dict]:
-    """Mesh on rank 0 of ``comm``; every rank gets the path and the summary."""
-    result = write_mesh(scene, out_dir) if comm.rank == 0 else None
-    return comm.bcast(result, root=0)
-
-
-def coin_mass(mesh_path: Path, scene, comm) -> float:
-    """Coin mass = volume of its (second-order) mesh × density."""
-    coin, _, _ = compat.read_mesh(mesh_path, comm, volumes=("coin",))
-    volume = compat.assemble_scalar(compat.form(1.0 * ufl.dx(domain=coin)), comm)
-    return volume * scene.coin.density_kg_m3
 
 
 class FieldWriter:
@@ -81,14 +67,13 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
     out_dir = Path(out_dir)
     name = name or run_name(scene)
     start = time.perf_counter()
-    mesh_path, summary = mesh_scene(scene, out_dir / "meshes" / name, comm)
-    mesh, cell_tags, facet_tags = compat.read_mesh(mesh_path, comm)
-    mass = coin_mass(mesh_path, scene, comm) if scene.coin is not None else None
-    problem = DEAProblem(scene, mesh, cell_tags, facet_tags)
+    sim = Simulation.from_scene(scene, mesh_dir=out_dir / "meshes" / name, comm=comm)
+    mass_kg, summary = sim.mass_kg, sim.mesh_summary
+    problem = sim.problem()
     log.info("%s: %d dofs on %d ranks, coin mass %s", name, problem.num_dofs(), comm.size,
-             f"{mass * 1e3:.4f} g" if mass else "-")
+             f"{mass_kg * 1e3:.4f} g" if mass_kg else "-")
     writer = FieldWriter(problem, out_dir / f"{name}_fields.xdmf", fields_every) if fields_every > 0 else None
-    stepper = Stepper(problem, mass, progress=progress, on_step=writer)
+    stepper = sim.stepper(problem, progress=progress, on_step=writer)
     try:
         records = stepper.run()
     finally:
@@ -98,7 +83,7 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
     attrs = {
         "title": f"deapull FEM run {name}",
         "scene": scene.scene.name, "setup": scene.setup, "scene_toml": scene.to_toml(),
-        "coin_mass_kg": mass if mass is not None else "",
+        "coin_mass_kg": mass_kg if mass_kg is not None else "",
         "coin_mu_t": scene.coin.mu_t if scene.coin else "", "coin_mu_b": scene.coin.mu_b if scene.coin else "",
         "coin_density_kg_m3": scene.coin.density_kg_m3 if scene.coin else "",
         "contact_slip_rate_reg_m_s": scene.contact.slip_rate_regularisation_m_s if scene.coin else "",
@@ -113,7 +98,7 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         "mesh_divisions": "x{n_length} z{n_width} active{n_active} passive{n_passive}".format(**vars(scene.mesh)),
         "solver_linear": scene.solver.linear_solver,
         "gravity_m_s2": scene.gravity_m_s2, "voltage_max_V": scene.load.voltage_max_V,
-        "mesh_cells": compat.num_cells_global(mesh), "mesh_dofs": problem.num_dofs(),
+        "mesh_cells": compat.num_cells_global(sim.mesh), "mesh_dofs": problem.num_dofs(),
         "mesh_cell_type": scene.mesh.cell, "mesh_order": scene.mesh.order, "mesh_level": scene.mesh.level,
         "mesh_min_quality": summary["min_quality_detj_ratio"],
         "coin_volume_rel_error": summary.get("coin_volume_rel_error", ""),

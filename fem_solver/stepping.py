@@ -2,7 +2,7 @@
 
 The caller owns the voltage and the step size::
 
-    stepper = Stepper(problem, coin_mass_kg)
+    stepper = Stepper(problem, mass_kg)      # or Simulation.from_scene(...).stepper()
     stepper.start()                      # placement under gravity at t = 0, the first record
     rec = stepper.advance(V_end, dt)     # one step t -> t + dt, V linear up to V_end
     ...
@@ -15,10 +15,10 @@ update (staggered, secant-accelerated on the coin position) until the coin posit
 changes by less than ``solver.coupling_tol_m``. The coupling is staggered rather than
 monolithic because the coin is one scalar unknown with a non-smooth (stick/slip) law:
 dolfinx 0.5 has no global real unknowns. The coin position X maps to X ↦ x_n + Δt u(X)
-with slope −Δt² k / m (k ≈ 213 N/m the DEA tip's tangential stiffness on the shipped mesh,
-m = 1.36 g): ≈ 0.30 at the largest step, 1/720 s, so even the plain fixed point contracts;
-the secant on G(X) = x(X) − X converges in 1 (stick) to 2–3 (slip) warm-started solves
-(docs/physics.md, "The coin and the coupling").
+with slope −Δt² k / m (k the DEA tip's tangential stiffness, m the coin's mass), below 1 at
+the shipped steps, so even the plain fixed point contracts; the secant on G(X) = x(X) − X
+converges in a few warm-started solves (the figures: docs/physics.md, "The coin and the
+coupling").
 
 Each (sub-)step starts from the predictor (linear extrapolation by the ratio of the step to
 the last one; none where the voltage turns) with full Newton steps; a solve that fails, or
@@ -27,10 +27,9 @@ converges on another branch (the DEA's free end moved more than
 backtracking line search, which then stays on for the run. Why: where the tip's
 rate-regularised friction reverses (a triangle's peak, a random input's turn), full Newton
 steps cycle (the friction flips within a slip of ε_v Δt), cut-backs only sharpen that, and
-on the shipped mesh the C1 triangle crawled on at 43 µs steps until one converged on the
-free-curling DEA (tip +26 mm / −32 mm, contact lost, the coin later pushed to −6.2 mm). With
-the line search that step converges at full size; ramps never need it and are unchanged
-to the bit.
+can end on another equilibrium branch (docs/physics.md, "The coin and the coupling", for the
+case measured). With the line search that step converges at full size; ramps never need it
+and are unchanged to the bit.
 
 A step that still fails is restored and retried as ``1 / time.cutback`` (rounded up) equal
 sub-steps, the voltage interpolated linearly between the step's start and end values, so
@@ -111,7 +110,7 @@ class StepRecord:
 PLACEMENT_MIN_STEP = 1e-3  # smallest gravity-continuation step of the initial placement
 #: largest move of the DEA's free-end face in one (sub-)step, as a fraction of the DEA's thickness;
 #: a converged solve that moves it further jumped to another equilibrium branch and is cut back
-#: (legitimate steps of the shipped runs move it ≤ 4e-5 m = 0.013 h; the jump it rejects: 38 mm = 13 h)
+#: (legitimate steps move it by a small fraction of h, the branch jumps it rejects by many h: docs/physics.md)
 MAX_TIP_MOVE_PER_STEP = 0.25
 #: SNES line search of the second try of a (sub-)step whose full-Newton-step solve failed
 LINE_SEARCH_RETRY = "bt"
@@ -128,7 +127,7 @@ class Stepper:
     Parameters
     ----------
     problem : fem_solver.problem.DEAProblem
-    coin_mass_kg : mass of the coin (None when the scene has no coin)
+    mass_kg : mass of the coin (None when the scene has no coin)
     progress : show a progress bar in :meth:`run` (rank 0 only)
     on_step : called as ``on_step(index, t)`` after each accepted step, before its record is kept
 
@@ -140,9 +139,9 @@ class Stepper:
     substep_dt : size of the last accepted (sub-)step; below the step's size after a cut-back
     """
 
-    def __init__(self, problem, coin_mass_kg=None, progress: bool = True, on_step=None):
+    def __init__(self, problem, mass_kg=None, progress: bool = True, on_step=None):
         self.p, self.scene = problem, problem.scene
-        self.mass = coin_mass_kg
+        self.mass_kg = mass_kg
         self.coin = CoinState()
         self.records: list[StepRecord] = []
         self.on_step = on_step
@@ -178,7 +177,7 @@ class Stepper:
             if not res.converged:
                 return False, res.reason, its, k, None, None
             Fx, Fy = p.obstacle_forces()
-            new = coulomb_step(self.coin, Fx, Fy, dt, self.mass, mu_b, g)
+            new = coulomb_step(self.coin, Fx, Fy, dt, self.mass_kg, mu_b, g)
             G = new.x - X
             if abs(G) <= tol:
                 return True, res.reason, its, k, CoinState(X, new.u, new.stick), (Fx, Fy)
@@ -201,7 +200,7 @@ class Stepper:
         if sc.coin is None:
             return 0.0
         Fx, Fy = self.p.obstacle_forces_from_reaction()
-        return force_balance_residual(prev, new, Fx, Fy, dt, self.mass, sc.coin.mu_b, sc.gravity_m_s2)
+        return force_balance_residual(prev, new, Fx, Fy, dt, self.mass_kg, sc.coin.mu_b, sc.gravity_m_s2)
 
     def _record(self, t, V, dt, its, coupling_its, cutbacks, wall, forces, residual) -> StepRecord:
         """The record of the state just solved (forces from the solve, before accept())."""

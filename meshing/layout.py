@@ -8,6 +8,7 @@ or stop), or at y = 0 when the scene has neither; gravity lets it down onto the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Optional
 
 from deapull.scene import Scene
@@ -29,7 +30,10 @@ class Layout:
         return max(self.active_y_m[1], self.passive_y_m[1]) - self.y_bottom_m
 
 
+@lru_cache(maxsize=16)
 def layout(scene: Scene) -> Layout:
+    """Where everything of ``scene`` sits. Computed once per scene: the mesher's steps and
+    the problem ask for it by the (frozen, hashable) scene and get the same object."""
     d = scene.dea
     obstacle = scene.coin or scene.stop
     top = (scene.coin.height_m if scene.coin else scene.stop.height_m) if obstacle else 0.0

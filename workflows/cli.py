@@ -22,7 +22,7 @@ log = logging.getLogger("deapull")
 def _rank() -> int:
     if "mpi4py" not in sys.modules:
         return 0
-    from mpi4py import MPI
+    from mpi4py import MPI  # lazy: only asked once a command has loaded MPI (importing it initialises MPI)
     return MPI.COMM_WORLD.rank
 
 
@@ -66,7 +66,7 @@ def cmd_show_scene(args) -> int:
 
 def cmd_mesh(args) -> int:
     sc = load_scene(args)
-    from deapull.meshing.build import write_mesh
+    from deapull.meshing.build import write_mesh  # lazy: gmsh loads only when this command runs
     path, summary = write_mesh(sc, args.out)
     print(f"wrote {path}")
     print(json.dumps(summary, indent=2))
@@ -74,7 +74,7 @@ def cmd_mesh(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from deapull.workflows.report import plot_run
+    from deapull.workflows.report import plot_run  # lazy: matplotlib loads only for a plot
     print(f"wrote {plot_run(args.data, args.out)}")
     return 0
 

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from deapull.errors import InputError
+
 
 def cmd_control(args) -> int:
-    from deapull.errors import InputError
-    from deapull.workflows import control
+    from deapull.workflows import control  # lazy: torch and gymnasium load only when a run starts
     if args.threads < 1:
         raise InputError(f"--threads {args.threads} must be at least 1")
     config = control.ControlConfig(
@@ -23,7 +24,7 @@ def cmd_control(args) -> int:
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, phi_prior=args.phi_prior, sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress)
-    import torch
+    import torch  # lazy: as above
     torch.set_num_threads(args.threads)
     episodes = control.run(config)
     print(control.summary_table([e.row for e in episodes]))

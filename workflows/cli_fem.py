@@ -4,13 +4,14 @@ from __future__ import annotations
 import sys
 
 from deapull.workflows.args import add_scene_args, load_scene, names
+from deapull.workflows.sweep import format_table, sweep
 
 
 def cmd_solve(args) -> int:
-    from mpi4py import MPI
+    from mpi4py import MPI  # lazy: importing mpi4py initialises MPI
 
-    from deapull.fem_solver.run import solve_scene
-    from deapull.fem_solver.stepping import SolveFailed
+    from deapull.fem_solver.run import solve_scene  # lazy: dolfinx
+    from deapull.fem_solver.stepping import SolveFailed  # lazy: dolfinx
     scene = load_scene(args)
     try:
         path = solve_scene(scene, args.out, MPI.COMM_WORLD, fields_every=args.fields_every)
@@ -24,9 +25,8 @@ def cmd_solve(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from mpi4py import MPI
+    from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
 
-    from deapull.workflows.sweep import format_table, sweep
     setups = names(args.setups)
     rows = sweep(args.scene, setups, args.out, MPI.COMM_WORLD, args.ranks_per_setup, args.overrides, args.protocols)
     if MPI.COMM_WORLD.rank == 0:

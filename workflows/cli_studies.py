@@ -7,18 +7,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from deapull import scene as scenes
 from deapull.workflows.args import add_scene_args, names
+from deapull.workflows.fidelity import run_ladder, summary_table as fidelity_table
+from deapull.workflows.stability import run_stability, summary_table as stability_table
 
 
 def cmd_fidelity(args) -> int:
-    from mpi4py import MPI
-
-    from deapull.workflows.fidelity import run_ladder, summary_table
+    from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
     extra = None
     if args.surrogate:   # models and their dataset are checked before any FEM work
-        from deapull.workflows import ladder
-        from deapull.surrogate.data import load_setup
-        from deapull import scene as scenes
+        from deapull.surrogate.data import load_setup  # lazy: torch loads only with --surrogate
+        from deapull.workflows import ladder  # lazy: torch
         setup = scenes.load(args.scene, setup=args.setup, overrides=args.overrides).setup
         models = ladder.load_models(args.surrogate)
         load_setup(Path(args.surrogate_data) / f"{setup}.nc")
@@ -29,21 +29,19 @@ def cmd_fidelity(args) -> int:
                       names(args.only), args.ranks_per_case, extra_rows=extra)
     if MPI.COMM_WORLD.rank != 0:
         return 0
-    print(summary_table(rows))
+    print(fidelity_table(rows))
     print(f"wrote {args.out}/fidelity.csv, fidelity.md, fidelity_pareto.png")
     reference = next(r for r in rows if r.get("is_reference"))
     return 0 if reference["status"] == "ok" else 1
 
 
 def cmd_stability(args) -> int:
-    from mpi4py import MPI
-
-    from deapull.workflows.stability import run_stability, summary_table
+    from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
     rows = run_stability(args.out, MPI.COMM_WORLD, args.protocol, names(args.cases), args.overrides,
                          args.ranks_per_case)
     if MPI.COMM_WORLD.rank != 0:
         return 0
-    print(summary_table(rows))
+    print(stability_table(rows))
     print(f"wrote {args.out}/stability.csv, stability.md")
     return 1 if any(r["status"] == "error" for r in rows) else 0
 

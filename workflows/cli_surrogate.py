@@ -8,14 +8,19 @@ bad input raises :class:`deapull.errors.InputError` (a ``ValueError``), which th
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
+
+from deapull.errors import InputError
+from deapull.io import write_json
+
+# lazy imports below: the surrogate modules load torch, which the CLI starts without
 
 
 def _config(args, kind: str):
-    import torch
+    import torch  # lazy: torch
 
-    from deapull.surrogate.train import TrainConfig
-    from deapull.errors import InputError
+    from deapull.surrogate.train import TrainConfig  # lazy: torch
     if args.threads < 1:
         raise InputError(f"--threads {args.threads} must be at least 1")
     torch.set_num_threads(args.threads)
@@ -24,9 +29,9 @@ def _config(args, kind: str):
 
 
 def cmd_train(args) -> int:
-    from deapull.surrogate import store
-    from deapull.surrogate.data import load_sweep, parse_setups
-    from deapull.surrogate.train import train
+    from deapull.surrogate import store  # lazy: torch
+    from deapull.surrogate.data import load_sweep, parse_setups  # lazy: torch
+    from deapull.surrogate.train import train  # lazy: torch
     config = _config(args, args.model)
     train_names = parse_setups(args.train)
     data = load_sweep(args.data, list(dict.fromkeys([*train_names, args.val])))
@@ -39,10 +44,9 @@ def cmd_train(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from deapull.io import write_json
-    from deapull.surrogate import store
-    from deapull.surrogate.data import load_setup
-    from deapull.surrogate.evaluate import evaluate, format_table
+    from deapull.surrogate import store  # lazy: torch
+    from deapull.surrogate.data import load_setup  # lazy: torch
+    from deapull.surrogate.evaluate import evaluate, format_table  # lazy: torch
     model, meta = store.load(args.model)
     data = load_setup(Path(args.data) / f"{args.test}.nc")
     phi = model.phi_of(data)        # the test coin
@@ -57,10 +61,9 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_experiments(args) -> int:
-    from deapull.surrogate import experiments
-    from deapull.surrogate.data import parse_setups
-    from deapull.surrogate.models import KINDS
-    from deapull.errors import InputError
+    from deapull.surrogate import experiments  # lazy: torch
+    from deapull.surrogate.data import parse_setups  # lazy: torch
+    from deapull.surrogate.models import KINDS  # lazy: torch
     kinds = parse_setups(args.models) if args.models else list(KINDS)
     try:
         sets = [int(s) for s in args.sets.split(",") if s.strip()]
@@ -75,8 +78,8 @@ def cmd_experiments(args) -> int:
 
 
 def cmd_experiments_protocols(args) -> int:
-    from deapull.surrogate import experiments, protocol_experiments as pe
-    from deapull.surrogate.data import parse_setups
+    from deapull.surrogate import experiments, protocol_experiments as pe  # lazy: torch
+    from deapull.surrogate.data import parse_setups  # lazy: torch
     kinds = parse_setups(args.models) if args.models else list(pe.DEFAULT_KINDS)
     design = pe.Design(train_coins=tuple(parse_setups(args.train_coins)), val_coins=tuple(parse_setups(args.val_coins)),
                        test_coins=tuple(parse_setups(args.test_coins)) if args.test_coins else (),
@@ -85,7 +88,6 @@ def cmd_experiments_protocols(args) -> int:
     rows = pe.run(args.data, args.out, _config(args, "f"), excitation_dir=args.excitation, kinds=kinds, design=design)
     ramp_csv = Path(args.ramp_results) / "experiments.csv" if args.ramp_results else None
     if ramp_csv is not None and ramp_csv.is_file():
-        import csv
         with ramp_csv.open() as fh:
             ramp_rows = [_typed(r) for r in csv.DictReader(fh)]
         ramp_kinds = [k for k in dict.fromkeys(r["model"] for r in ramp_rows)]
@@ -128,7 +130,7 @@ def _training_args(p: argparse.ArgumentParser, epochs: int, patience: int = 100)
 
 def register(sub) -> None:
     """Add ``train``, ``evaluate`` and ``experiments`` to the ``deapull`` sub-parsers."""
-    from deapull.surrogate.models import KINDS
+    from deapull.surrogate.models import KINDS  # lazy: torch
 
     p = sub.add_parser("train", help="train a surrogate (f, f-coulomb, nn, lstm) on FEM datasets")
     p.add_argument("--data", required=True, help="folder with <setup>.nc datasets")

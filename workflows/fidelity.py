@@ -252,9 +252,9 @@ MD_COLUMNS = (("rung", "case", ""), ("elements", "elements", ""), ("ν", "poisso
 
 def plot_pareto(rows, path: Path) -> None:
     """Log–log error against wall time, Pareto fronts joined, default and reference marked."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib loads only for the plot
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: as above
     panels = (("error_pct", "on_pareto", "error: max(MAE x / travel, MAE Fy / max Fy) [%]"),
               ("travel_err_pct", "on_pareto_travel", "coin-travel error [% of reference]"))
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))

@@ -18,6 +18,7 @@ Only rank 0 shows progress.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import math
@@ -56,7 +57,7 @@ def idle_barrier(comm, poll_s: float = POLL_S) -> None:
 
 def initialise_petsc(comm) -> None:
     """Import dolfinx (and so initialise PETSc) on every rank before the groups split."""
-    import dolfinx.fem.petsc  # noqa: F401
+    import dolfinx.fem.petsc  # noqa: F401  # lazy: the point of the call; importing the runner loads no dolfinx
     comm.Barrier()
 
 
@@ -84,7 +85,6 @@ def result_path(out_dir: Path, name: str) -> Path:
 def scene_digest(scene) -> str:
     """A short digest of a resolved scene (its TOML): a stored result is reused only for the
     same scene, so a changed scene file or default re-solves the case instead of resuming."""
-    import hashlib
     return hashlib.sha256(scene.to_toml().encode()).hexdigest()[:16]
 
 
@@ -164,7 +164,7 @@ def instability_indicators(cols: dict, from_fraction: float = 0.1) -> dict:
 
 def _write_partial(records, scene, path: Path) -> None:
     """The accepted steps of a failed run, as a dataset marked incomplete (for diagnosis)."""
-    from deapull.fem_solver.stepping import as_arrays
+    from deapull.fem_solver.stepping import as_arrays  # lazy: dolfinx loads only when a solve runs
     ds = dataset.build(as_arrays(records), {"scene": scene.scene.name, "setup": scene.setup,
                                             "scene_toml": scene.to_toml()})
     ds.attrs["complete"] = 0
@@ -176,8 +176,9 @@ def solve_case(case: Case, scene, out_dir: Path, comm, progress: bool, run_dir: 
     """Solve one case into ``run_dir`` (default ``<out>/cases/<name>/``) as ``<name>.nc`` (default
     the setup's or scene's name); a failed or crashed solve becomes a result that says so (its
     accepted steps in ``<out>/cases/<name>/partial.nc``)."""
-    from deapull.fem_solver.run import solve_scene
-    from deapull.fem_solver.stepping import SolveFailed, as_arrays
+    # lazy (dolfinx): setting up a study and reading its results need no FEniCSx
+    from deapull.fem_solver.run import solve_scene  # lazy: dolfinx
+    from deapull.fem_solver.stepping import SolveFailed, as_arrays  # lazy: dolfinx
     run_dir = case_dir(out_dir, case.name) if run_dir is None else Path(run_dir)
     start = time.perf_counter()
     try:

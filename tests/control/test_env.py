@@ -189,8 +189,7 @@ def test_fem_plant_episode_moves_the_coin_as_the_fems_own_stepping(tmp_path):
     from deapull import scene as scenes
     from deapull.control.plants import FEMPlant
     from deapull.control.policies import HeuristicPolicy
-    from deapull.fem_solver.problem import DEAProblem
-    from deapull.fem_solver.stepping import Stepper, scene_protocol
+    from deapull.fem_solver.stepping import scene_protocol
     from deapull.workflows.control import run_episode
     V0, dV, n = 150.0, 3.0, 14
     ramp = int(V0 / 0.5)                       # steps of the env's start ramp
@@ -205,7 +204,7 @@ def test_fem_plant_episode_moves_the_coin_as_the_fems_own_stepping(tmp_path):
     assert plant.t == pytest.approx((ramp + n) * 1e-3)
 
     protocol = scene_protocol(scene)
-    own = Stepper(DEAProblem(scene, *plant._mesh), plant.mass_kg, progress=False)
+    own = plant.simulation.stepper(progress=False)
     records = [own.start(protocol(0.0))] + [own.advance(protocol(k * 1e-3), 1e-3) for k in range(1, ramp + n + 1)]
     x_own = np.array([r.x for r in records[ramp:]])
     assert x_own[-1] < -2e-5                                      # it slid (measured: -0.066 mm)

@@ -1,5 +1,6 @@
 """Installing deapull shadows nothing: python-control's ``control`` and this project's
 ``deapull.control`` are both importable, and the project adds no other top-level name."""
+import importlib
 import importlib.metadata
 import json
 import subprocess
@@ -33,3 +34,26 @@ def test_the_distribution_installs_one_top_level_package():
                          "workflows": False}
     else:
         assert tops == {"deapull"}
+
+
+PUBLIC = ("deapull", "deapull.meshing", "deapull.fem_solver", "deapull.workflows")
+
+
+@pytest.mark.parametrize("package", PUBLIC)
+def test_each_package_names_its_public_api(package):
+    """``__all__`` lists names the package has, without duplicates; ``import *`` gives exactly them."""
+    if package in ("deapull.meshing", "deapull.fem_solver"):
+        pytest.importorskip("dolfinx", reason="the FEM packages need FEniCSx")
+    names = importlib.import_module(package).__all__
+    assert names and len(set(names)) == len(names)
+    scope = {}
+    exec(f"from {package} import *", scope)
+    assert set(scope) - {"__builtins__"} == set(names)
+
+
+def test_importing_the_command_line_loads_no_solver_or_network():
+    """``deapull.workflows`` (and so ``deapull --help``) loads neither dolfinx, gmsh, torch nor MPI."""
+    code = ("import json, sys, deapull.workflows; "
+            "print(json.dumps(sorted(m for m in ('dolfinx', 'gmsh', 'torch', 'mpi4py') if m in sys.modules)))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert json.loads(proc.stdout) == []

@@ -13,7 +13,8 @@ from mpi4py import MPI
 from deapull import scene as scenes
 from deapull.fem_solver import compat
 from deapull.fem_solver.problem import DEAProblem, tip_element_length
-from deapull.fem_solver.run import mesh_scene, solve_scene
+from deapull.fem_solver.run import solve_scene
+from deapull.fem_solver.simulation import mesh_scene
 from deapull.meshing import groups
 from deapull.meshing.layout import layout
 

@@ -7,14 +7,11 @@ import tomllib
 import numpy as np
 import pytest
 import xarray as xr
-from mpi4py import MPI
 
 from deapull import scene as scenes
-from deapull.fem_solver import compat
 from deapull.fem_solver.coin import CoinState, force_balance_residual
-from deapull.fem_solver.problem import DEAProblem
-from deapull.fem_solver.run import coin_mass, mesh_scene
-from deapull.fem_solver.stepping import SolveFailed, Stepper
+from deapull.fem_solver.simulation import Simulation
+from deapull.fem_solver.stepping import SolveFailed
 from tests.fem_solver.conftest import C3_TEST, balance_bound_N, c3_reference
 
 #: float columns of the paper's table, compared to round-off
@@ -83,10 +80,7 @@ def test_independent_force_balance_is_at_the_newton_tolerance(c3_run):
 
 def _stepper(tmp_path, *overrides, setup="C3", scene="coin_pull"):
     sc = scenes.load(scene, setup=setup, overrides=(*C3_TEST, *overrides))
-    mesh_path, _ = mesh_scene(sc, tmp_path / "mesh", MPI.COMM_WORLD)
-    mesh, ct, ft = compat.read_mesh(mesh_path)
-    mass = coin_mass(mesh_path, sc, MPI.COMM_WORLD) if sc.coin else None
-    return Stepper(DEAProblem(sc, mesh, ct, ft), mass, progress=False)
+    return Simulation.from_scene(sc, mesh_dir=tmp_path / "mesh").stepper(progress=False)
 
 
 def test_a_broken_coupling_shows_in_the_balance_but_not_in_the_old_check(tmp_path, monkeypatch):
@@ -99,7 +93,7 @@ def test_a_broken_coupling_shows_in_the_balance_but_not_in_the_old_check(tmp_pat
     right = p.obstacle_forces
     monkeypatch.setattr(p, "obstacle_forces", lambda: (0.9 * right()[0], right()[1]))
     records = stepper.run()
-    sc, mass = stepper.scene, stepper.mass
+    sc, mass = stepper.scene, stepper.mass_kg
     slip = [r for r in records if not r.stick]
     assert len(slip) > 20
     old = [force_balance_residual(CoinState(a.x, a.u, bool(a.stick)), CoinState(b.x, b.u, bool(b.stick)),

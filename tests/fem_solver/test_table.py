@@ -13,7 +13,7 @@ from mpi4py import MPI
 from deapull import scene as scenes
 from deapull.fem_solver import compat
 from deapull.fem_solver.problem import DEAProblem
-from deapull.fem_solver.run import mesh_scene
+from deapull.fem_solver.simulation import mesh_scene
 from deapull.fem_solver.stepping import Stepper
 from deapull.meshing.layout import layout
 
