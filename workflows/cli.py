@@ -74,7 +74,7 @@ def cmd_mesh(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from deapull.workflows.report import plot_run  # lazy: matplotlib loads only for a plot
+    from deapull.workflows.plot_run import plot_run  # lazy: matplotlib loads only for a plot
     print(f"wrote {plot_run(args.data, args.out)}")
     return 0
 

@@ -8,37 +8,38 @@ from __future__ import annotations
 
 import logging
 
+from deapull.errors import InputError
+
 log = logging.getLogger(__name__)
 
 
 def _inputs(args):
-    from deapull.workflows.site import Inputs
+    from deapull.workflows.report import Inputs    # lazy: the CLI loads every sub-command's module
     return Inputs.under(args.outputs, args.data, fields=args.fields, fidelity=args.fidelity_dir,
                         stability=args.stability_dir, experiments=args.experiments_dir, control=args.control_dir,
                         bench_control=args.bench_control_dir)
 
 
 def cmd_report(args) -> int:
-    from deapull.errors import InputError
-    from deapull.workflows import site
+    from deapull.workflows import report             # lazy: it imports matplotlib and tqdm
     inputs = _inputs(args)
     if args.missing_steps:
-        for name in site.missing_steps(inputs):
+        for name in report.missing_steps(inputs):
             print(name)
         return 0
     if args.check == "yes":
-        from deapull.workflows.site_check import find_browser
+        from deapull.workflows.report.check import find_browser
         if find_browser(args.browser) is None:
             raise InputError("--check yes: no browser (apt-get install chromium; pip install playwright)")
-    summary = site.build(args.out, inputs, frames=args.frames, progress=not args.no_progress)
+    summary = report.build(args.out, inputs, frames=args.frames, progress=not args.no_progress)
     print(f"wrote {summary['index']} and {summary['markdown']} ({len(summary['images'])} images, "
           f"{len(summary['claims'])} paper numbers beside ours)")
     for name in summary["missing"]:
-        step = site.STEP[name]
+        step = report.STEP[name]
         print(f"missing: {step.what}: {step.make}")
     if args.check == "no":
         return 0
-    from deapull.workflows.site_check import check_page, find_browser
+    from deapull.workflows.report.check import check_page, find_browser
     if find_browser(args.browser) is None:
         print("browser check skipped: no chromium/playwright (apt-get install chromium; pip install playwright)")
         return 0

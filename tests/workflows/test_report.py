@@ -11,12 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from deapull.errors import InputError
 from deapull.io import write_csv
-from deapull.workflows import site, site_render
-from deapull.workflows.site_check import BrowserUnavailable, check_page, find_browser
+from deapull.paper import PAPER_TABLE2
+from deapull.workflows import report
+from deapull.workflows.report import pictures
+from deapull.workflows.report.check import BrowserUnavailable, check_page, find_browser
 from tests.conftest import REPO, SWEEP
 
-ALL_STEPS = [s.name for s in site.STEPS]
+ALL_STEPS = [s.name for s in report.STEPS]
 
 
 def _cli(*args, cwd=REPO):
@@ -24,8 +27,8 @@ def _cli(*args, cwd=REPO):
                           text=True, timeout=300)
 
 
-def _inputs(tmp_path, data) -> site.Inputs:
-    return site.Inputs.under(tmp_path / "out", data)
+def _inputs(tmp_path, data) -> report.Inputs:
+    return report.Inputs.under(tmp_path / "out", data)
 
 
 def _sweep(tmp_path, setups) -> Path:
@@ -78,12 +81,12 @@ def _png_ok(path: Path) -> None:
 def test_report_from_partial_outputs_names_what_is_missing(tmp_path):
     data = _sweep(tmp_path, ["C1", "C2", "C3"])
     out = tmp_path / "report"
-    summary = site.build(out, _inputs(tmp_path, data), progress=False)
+    summary = report.build(out, _inputs(tmp_path, data), progress=False)
     assert summary["missing"] == ALL_STEPS          # 5 setups absent, and every study
     md, html = (out / "report.md").read_text(), (out / "index.html").read_text()
     for text in (md, html):
         assert "C4, C5, C6, C7, C8" in text and "make sweep" in text
-        for step in site.STEPS:
+        for step in report.STEPS:
             assert step.make in text, step.make
     # one block per missing output: sweep, fields, bench-fem, fidelity, stability, experiments,
     # excitation + experiments-protocols, control, bench-control
@@ -103,11 +106,11 @@ def test_report_from_partial_outputs_names_what_is_missing(tmp_path):
 
 
 def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
-    data = _sweep(tmp_path, site.SETUPS)
+    data = _sweep(tmp_path, report.SETUPS)
     inputs = _inputs(tmp_path, data)
     _fake_studies(inputs)
     out = tmp_path / "report"
-    summary = site.build(out, inputs, progress=False)
+    summary = report.build(out, inputs, progress=False)
     assert summary["missing"] == ["report-fields"]
     html = (out / "index.html").read_text()
     page = _parse(out / "index.html")
@@ -133,29 +136,29 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
 
 
 def test_fem_section_states_the_references_own_error_or_that_it_is_unknown(tmp_path):
-    data = _sweep(tmp_path, site.SETUPS)
+    data = _sweep(tmp_path, report.SETUPS)
     inputs = _inputs(tmp_path, data)
     _fake_studies(inputs)
-    site.build(tmp_path / "r1", inputs, progress=False)
+    report.build(tmp_path / "r1", inputs, progress=False)
     assert "The reference's own error is not known" in (tmp_path / "r1" / "report.md").read_text()
     bench = inputs.bench_fem / "bench_fem.json"
     res = json.loads(bench.read_text())
     res["reference"]["error_bound_rel"] = 0.0123
     bench.write_text(json.dumps(res))
-    site.build(tmp_path / "r2", inputs, progress=False)
+    report.build(tmp_path / "r2", inputs, progress=False)
     text = (tmp_path / "r2" / "report.md").read_text()
     assert "The reference's own error bound: ± 1.23 %" in text and "not known" not in text
 
 
 def test_rebuild_drops_images_no_longer_shown(tmp_path):
-    data = _sweep(tmp_path, site.SETUPS)
+    data = _sweep(tmp_path, report.SETUPS)
     inputs = _inputs(tmp_path, data)
     _fake_studies(inputs)
     out = tmp_path / "report"
-    site.build(out, inputs, progress=False)
+    report.build(out, inputs, progress=False)
     assert (out / "img" / "fidelity_pareto.png").is_file()
     shutil.rmtree(inputs.fidelity)
-    summary = site.build(out, inputs, progress=False)
+    summary = report.build(out, inputs, progress=False)
     assert not (out / "img" / "fidelity_pareto.png").exists() and "fidelity" in summary["missing"]
 
 
@@ -170,7 +173,7 @@ def _png(path: Path) -> None:
     plt.close(fig)
 
 
-def _fake_studies(inputs: site.Inputs) -> None:
+def _fake_studies(inputs: report.Inputs) -> None:
     """Tiny outputs of every study, in the formats their commands write."""
     write_csv(inputs.fidelity / "fidelity.csv",
               [dict(case="ref", kind="fem", status="ok", elements="hex Q2", dofs=900, steps=50, wall_s=9.0,
@@ -191,7 +194,7 @@ def _fake_studies(inputs: site.Inputs) -> None:
             for i in (1, 2) for m, e in (("f", 0.5e-4), ("nn", 2e-4))]
     write_csv(inputs.experiments / "experiments.csv", rows, list(rows[0]))
     (inputs.experiments / "experiments.json").write_text(json.dumps(
-        {"rows": rows, "paper": site.PAPER_TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
+        {"rows": rows, "paper": PAPER_TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
     for name in ("x_error_boxplot.png", "rollouts.png"):
         _png(inputs.experiments / name)
     episodes = [dict(policy=p, plant=f"surrogate:C{c}", noise_std_m=n, episode=k, reached=True,
@@ -265,7 +268,7 @@ def _write_fields(folder: Path, times, nx=4) -> Path:
 
 def test_boundary_faces_of_a_hex27_box():
     X, cells = _box_hex27(3, 2, 1)
-    polys = site_render.boundary_faces(X, cells, "Hexahedron_27")
+    polys = pictures.boundary_faces(X, cells, "Hexahedron_27")
     # each element face on the boundary split in 4 quads
     assert len(polys) == 4 * 2 * (3 * 2 + 2 * 1 + 3 * 1)
     on_boundary = np.isclose(X, X.min(0)) | np.isclose(X, X.max(0))
@@ -274,9 +277,9 @@ def test_boundary_faces_of_a_hex27_box():
 
 def test_half_model_is_mirrored_to_the_whole_box():
     X, cells = _box_hex27(2, 1, 1, size=(0.04, 0.003, 0.01), origin=(-0.04, 0.00625, 0.0))
-    points, polys = site_render.mirror_z(X, site_render.boundary_faces(X, cells, "Hexahedron_27"))
+    points, polys = pictures.mirror_z(X, pictures.boundary_faces(X, cells, "Hexahedron_27"))
     full, full_cells = _box_hex27(2, 1, 2)
-    assert len(polys) == len(site_render.boundary_faces(full, full_cells, "Hexahedron_27")) == 64
+    assert len(polys) == len(pictures.boundary_faces(full, full_cells, "Hexahedron_27")) == 64
     assert np.allclose(points[:, 2].min(), -0.01) and not any(np.allclose(points[list(p), 2], 0.0) for p in polys)
 
 
@@ -285,7 +288,7 @@ def test_pictures_and_animation_from_field_output(tmp_path):
     fields.mkdir(parents=True)
     _write_fields(fields, np.linspace(0, 1, 9))
     out = tmp_path / "report"
-    summary = site.build(out, _inputs(tmp_path, _sweep(tmp_path, ["C3"])), frames=5, progress=False)
+    summary = report.build(out, _inputs(tmp_path, _sweep(tmp_path, ["C3"])), frames=5, progress=False)
     assert "report-fields" not in summary["missing"]
     for stage in ("rest", "static", "kinetic"):
         _png_ok(out / "img" / f"dea_{stage}.png")
@@ -302,8 +305,8 @@ def test_pictures_and_animation_from_field_output(tmp_path):
 
 def test_stages_pick_the_frame_before_sliding(tmp_path):
     _write_fields(tmp_path, np.linspace(0, 1, 11))
-    s3 = site_render.load_scene3d(tmp_path / "C3_fields.xdmf")
-    stages = site_render.stage_frames(s3)
+    s3 = pictures.load_scene3d(tmp_path / "C3_fields.xdmf")
+    stages = pictures.stage_frames(s3)
     t_slip = s3.run_t[int(np.argmax(s3.stick == 0))]
     assert stages["rest"] == 0 and stages["kinetic"] == 10
     assert s3.fields.times[stages["static"]] < t_slip <= s3.fields.times[stages["static"] + 1]
@@ -311,8 +314,8 @@ def test_stages_pick_the_frame_before_sliding(tmp_path):
 
 def test_broken_field_file_is_an_input_error(tmp_path):
     (tmp_path / "C3_fields.xdmf").write_text("<Xdmf><Domain>")
-    with pytest.raises(site.InputError, match="not valid XML"):
-        site_render.read_fields(tmp_path / "C3_fields.xdmf")
+    with pytest.raises(InputError, match="not valid XML"):
+        pictures.read_fields(tmp_path / "C3_fields.xdmf")
 
 
 # --- the command ---------------------------------------------------------------------------
@@ -354,12 +357,12 @@ needs_browser = pytest.mark.skipif(find_browser() is None, reason="no chromium +
 
 @needs_browser
 def test_page_loads_cleanly_in_chromium(tmp_path):
-    data = _sweep(tmp_path, site.SETUPS)
+    data = _sweep(tmp_path, report.SETUPS)
     inputs = _inputs(tmp_path, data)
     _fake_studies(inputs)
     inputs.fields.parent.mkdir(parents=True)
     _write_fields(inputs.fields.parent, np.linspace(0, 1, 5))
-    summary = site.build(tmp_path / "report", inputs, frames=3, progress=False)
+    summary = report.build(tmp_path / "report", inputs, frames=3, progress=False)
     assert summary["missing"] == []
     result = check_page(summary["index"])
     assert result.ok, result.summary()
@@ -398,10 +401,10 @@ def test_pictures_from_a_real_solve(tmp_path):
     proc = _cli("solve", "--scene", "coin_pull", "--setup", "C3", "--out", str(folder), "--fields-every", "2",
                 *[a for o in tiny for a in ("--set", o)])
     assert proc.returncode == 0, proc.stderr[-2000:]
-    s3 = site_render.load_scene3d(folder / "C3_fields.xdmf")
+    s3 = pictures.load_scene3d(folder / "C3_fields.xdmf")
     assert len(s3.fields.times) >= 3 and s3.umax_mm > 0.1
     # coin_pull is a half model (z >= 0, 4 x 1 x (1 + 1) hexahedra) drawn mirrored: the outer faces
     # of a 4 x 2 x 2 block, each drawn as 4 sub-faces, the mid-plane dropped
     assert s3.mirrored and len(s3.polys) == 4 * 2 * (4 * 2 + 4 * 2 + 2 * 2)
-    png = site_render.stage_picture(s3, "kinetic", len(s3.fields.times) - 1, tmp_path / "k.png")
+    png = pictures.stage_picture(s3, "kinetic", len(s3.fields.times) - 1, tmp_path / "k.png")
     _png_ok(png)

@@ -1,0 +1,110 @@
+"""Where the report reads each study's outputs, and the make steps that make them.
+
+:class:`Inputs` holds the paths (defaults: the folders the make targets write); :data:`STEPS`
+names each make target, its command and what it makes; :func:`missing_steps` lists the
+targets whose outputs are absent (``make report FULL=1`` runs them first).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from deapull import dataset
+from deapull.workflows.sweep import PROTOCOL_SETS
+
+SCENE = "coin_pull"
+SETUPS = tuple(f"C{i}" for i in range(1, 9))
+#: the coins `make excitation` plays the excitation protocols on
+EXCITATION_SETUPS = ("C1", "C3", "C5", "C7")
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """Where each study's outputs are read from (defaults: the make targets' folders)."""
+    data: Path = Path("data")
+    fields: Path = Path("out/report_fields/C3_fields.xdmf")
+    fidelity: Path = Path("out/fidelity")
+    stability: Path = Path("out/stability")
+    experiments: Path = Path("out/experiments")
+    control: Path = Path("out/control")
+    bench_control: Path = Path("out/bench_control")
+    bench_fem: Path = Path("out/bench_fem")
+    excitation: Path = Path("data/excitation")
+    protocols: Path = Path("out/protocols")
+
+    @classmethod
+    def under(cls, out_root="out", data="data", **paths) -> "Inputs":
+        """Every study folder under ``out_root`` unless given in ``paths`` (None: the default)."""
+        root = Path(out_root)
+        default = {"fields": root / "report_fields" / "C3_fields.xdmf", "fidelity": root / "fidelity",
+                   "stability": root / "stability", "experiments": root / "experiments",
+                   "control": root / "control", "bench_control": root / "bench_control",
+                   "bench_fem": root / "bench_fem", "excitation": Path(data) / "excitation",
+                   "protocols": root / "protocols"}
+        default.update({k: Path(v) for k, v in paths.items() if v is not None})
+        return cls(data=Path(data), **default)
+
+
+@dataclass(frozen=True)
+class Step:
+    """A make target and the command behind it, and the files that show it has run."""
+    name: str
+    make: str
+    command: str
+    what: str
+
+
+STEPS = (
+    Step("sweep", "make sweep", "mpirun -n 2 deapull sweep --scene coin_pull --out data",
+         "the 8 FEM datasets C1..C8 (the sweep, the surrogates and control read them)"),
+    Step("report-fields", "make report-fields",
+         "deapull solve --scene coin_pull --setup C3 --out out/report_fields --fields-every 10",
+         "the displacement fields of one run (pictures and animation)"),
+    Step("bench-fem", "make bench-fem", "python bench/bench_fem.py --out out/bench_fem --np 2",
+         "the FEM's wall time, travel error and sweep time beside ABAQUS (docs/fem_accuracy.md)"),
+    Step("fidelity", "make fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --out out/fidelity",
+         "the error-against-run-time ladder"),
+    Step("stability", "make stability", "mpirun -n 2 deapull stability --out out/stability",
+         "the stiff and extreme cases"),
+    Step("experiments", "make experiments", "deapull experiments --data data --out out/experiments",
+         "the paper's six experiment sets (Table II, box plot, rollouts)"),
+    Step("excitation", "make excitation", "mpirun -n 2 deapull sweep --scene coin_pull --setups C1,C3,C5,C7 "
+         "--protocols excitation --out data/excitation", "the FEM under ramp-hold-ramp, triangle, release and "
+         "random voltages"),
+    Step("experiments-protocols", "make experiments-protocols", "deapull experiments-protocols --data data "
+         "--excitation data/excitation --out out/protocols --ramp-results out/experiments",
+         "the surrogates on held-out protocols and coins"),
+    Step("control", "make control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 "
+         "--episodes 10 --noise 0,1e-5,1e-4,1e-3 --out out/control", "the closed-loop episodes (Fig. 6)"),
+    Step("bench-control", "make bench-control", "python bench/bench_control.py --out out/bench_control",
+         "the MPC step beside mpc.pytorch"),
+)
+STEP = {s.name: s for s in STEPS}
+
+
+def step_done(name: str, inputs: Inputs) -> bool:
+    """True when the outputs of step ``name`` are there (complete datasets, the study's table)."""
+    if name == "sweep":
+        return all(dataset.is_complete(inputs.data / f"{s}.nc") for s in SETUPS)
+    if name == "report-fields":
+        return inputs.fields.is_file() and dataset.is_complete(fields_run(inputs.fields))
+    files = {"fidelity": inputs.fidelity / "fidelity.csv", "stability": inputs.stability / "stability.csv",
+             "experiments": inputs.experiments / "experiments.csv", "control": inputs.control / "control.csv",
+             "bench-control": inputs.bench_control / "bench_control.json",
+             "bench-fem": inputs.bench_fem / "bench_fem.json",
+             "experiments-protocols": inputs.protocols / "protocols.csv"}
+    if name == "excitation":
+        return all(dataset.is_complete(inputs.excitation / f"{s}_{p}.nc")
+                   for s in EXCITATION_SETUPS for p in PROTOCOL_SETS["excitation"])
+    return files[name].is_file()
+
+
+def missing_steps(inputs: Inputs) -> list[str]:
+    """Names of the steps (make targets) whose outputs are absent, in pipeline order."""
+    return [s.name for s in STEPS if not step_done(s.name, inputs)]
+
+
+def fields_run(xdmf: Path) -> Path:
+    """The run dataset beside a field file (``C3_fields.xdmf`` → ``C3.nc``)."""
+    return xdmf.with_name(xdmf.name.replace("_fields.xdmf", ".nc"))
+

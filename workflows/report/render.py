@@ -1,0 +1,131 @@
+"""The page rendered: one self-contained HTML file (inline CSS, no script) and the same
+content as Markdown."""
+from __future__ import annotations
+
+import html
+import re
+from pathlib import Path
+
+from deapull.workflows.report.document import Report
+
+
+_INLINE = re.compile(r"`([^`]+)`|\[([^\]]+)\]\(([^)\s]+)\)|\*\*([^*]+)\*\*")
+
+
+def inline_html(text: str) -> str:
+    """Escape ``text`` and turn its `code`, [link](href) and **bold** into HTML."""
+    out, pos = [], 0
+    for m in _INLINE.finditer(text):
+        out.append(html.escape(text[pos:m.start()]))
+        if m.group(1) is not None:
+            out.append(f"<code>{html.escape(m.group(1))}</code>")
+        elif m.group(2) is not None:
+            out.append(f'<a href="{html.escape(m.group(3), quote=True)}">{inline_html(m.group(2))}</a>')
+        else:
+            out.append(f"<strong>{html.escape(m.group(4))}</strong>")
+        pos = m.end()
+    out.append(html.escape(text[pos:]))
+    return "".join(out)
+
+
+def _md_cell(text: str) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;max-width:1200px;margin:0 auto;
+padding:0 1.2em 3em;
+color:#1d1d1f;line-height:1.45}
+h1{margin-top:.6em}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:2em}
+table{border-collapse:collapse;margin:.6em 0 1.2em;font-size:.86em;display:block;overflow-x:auto}
+th,td{border:1px solid #ccc;padding:.25em .5em;text-align:right;white-space:nowrap}
+th{background:#f2f2f5}td:first-child,th:first-child{text-align:left}
+tr:target{background:#fff3b0}caption{caption-side:top;text-align:left;font-weight:600;padding:.3em 0}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}figcaption{font-size:.88em;color:#444}
+.missing{background:#fff4f0;border-left:4px solid #d9534f;padding:.5em .8em;margin:.8em 0}
+code{background:#f4f4f6;padding:0 .25em;border-radius:3px}nav ol{columns:2}
+table.wrap td,table.wrap th{white-space:normal;text-align:left}
+"""
+
+
+def render_html(report: Report, title: str, lead: list[str]) -> str:
+    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+             '<meta name="viewport" content="width=device-width, initial-scale=1">',
+             f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
+             f"<h1>{html.escape(title)}</h1>"]
+    parts += [f"<p>{inline_html(t)}</p>" for t in lead]
+    parts.append("<nav><ol>" + "".join(f'<li><a href="#{s.id}">{html.escape(s.title)}</a></li>'
+                                       for s in report.sections) + "</ol></nav>")
+    for s in report.sections:
+        parts.append(f'<section id="{s.id}"><h2>{html.escape(s.title)}</h2>')
+        for block in s.blocks:
+            kind = block[0]
+            if kind == "p":
+                parts.append(f"<p>{inline_html(block[1])}</p>")
+            elif kind == "ul":
+                parts.append("<ul>" + "".join(f"<li>{inline_html(i)}</li>" for i in block[1]) + "</ul>")
+            elif kind == "img":
+                src, alt = html.escape(block[1], quote=True), html.escape(block[2], quote=True)
+                parts.append(f'<figure><img src="{src}" alt="{alt}">'
+                             f"<figcaption>{inline_html(block[2])}</figcaption></figure>")
+            elif kind == "missing":
+                _, what, step = block
+                parts.append(f'<div class="missing"><strong>Missing:</strong> {inline_html(what)}. Make it with '
+                             f"<code>{html.escape(step.make)}</code> (runs <code>{html.escape(step.command)}</code>)."
+                             "</div>")
+            elif kind == "table":
+                t = block[1]
+                cap = f"<caption>{inline_html(t.caption)}</caption>" if t.caption else ""
+                head = "".join(f"<th>{inline_html(str(h))}</th>" for h in t.headers)
+                rows = []
+                for i, row in enumerate(t.rows):
+                    rid = t.anchors[i] if t.anchors else None
+                    attr = f' id="{rid}"' if rid else ""
+                    rows.append(f"<tr{attr}>" + "".join(f"<td>{inline_html(str(c))}</td>" for c in row) + "</tr>")
+                cls = ' class="wrap"' if t.wrap else ""
+                parts.append(f"<table{cls}>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>")
+        if s.sources:
+            links = ", ".join(f'<a href="#{report.sources[Path(p).resolve()]["anchor"]}"><code>{html.escape(str(p))}'
+                              "</code></a>" for p in s.sources)
+            parts.append(f"<p><small>Sources: {links}</small></p>")
+        parts.append("</section>")
+    parts.append("</body></html>")
+    return "\n".join(parts) + "\n"
+
+
+def render_markdown(report: Report, title: str, lead: list[str]) -> str:
+    lines = [f"# {title}", ""]
+    for t in lead:
+        lines += [t, ""]
+    lines += [f"{i + 1}. [{s.title}](#{s.id})" for i, s in enumerate(report.sections)] + [""]
+    for s in report.sections:
+        lines += [f'<a id="{s.id}"></a>', "", f"## {s.title}", ""]
+        for block in s.blocks:
+            kind = block[0]
+            if kind == "p":
+                lines += [block[1], ""]
+            elif kind == "ul":
+                lines += [f"* {i}" for i in block[1]] + [""]
+            elif kind == "img":
+                lines += [f"![{block[2]}]({block[1]})", "", f"*{block[2]}*", ""]
+            elif kind == "missing":
+                _, what, step = block
+                lines += [f"> **Missing:** {what}. Make it with `{step.make}` (runs `{step.command}`).", ""]
+            elif kind == "table":
+                t = block[1]
+                if t.caption:
+                    lines += [f"**{t.caption}**", ""]
+                lines.append("| " + " | ".join(_md_cell(h) for h in t.headers) + " |")
+                lines.append("|" + "---|" * len(t.headers))
+                for i, row in enumerate(t.rows):
+                    rid = t.anchors[i] if t.anchors else None
+                    cells = [_md_cell(c) for c in row]
+                    if rid:
+                        cells[0] = f'<a id="{rid}"></a>{cells[0]}'
+                    lines.append("| " + " | ".join(cells) + " |")
+                lines.append("")
+        if s.sources:
+            lines += ["<small>Sources: " + ", ".join(f"[`{p}`](#{report.sources[Path(p).resolve()]['anchor']})"
+                                                    for p in s.sources) + "</small>", ""]
+    return "\n".join(lines)
+

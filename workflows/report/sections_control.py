@@ -1,0 +1,127 @@
+"""The report's control section: closed-loop episodes (the paper's Fig. 6), online
+inference of φ and the MPC step beside mpc.pytorch."""
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+
+from deapull.paper import PAPER_CONTROL
+from deapull.workflows.report.document import Claim, Report, Section, Table
+from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
+
+
+def section_control(rep: Report) -> Section:
+    sec = Section("control", "Control and inference (the paper's Fig. 6, §VI-B/C)")
+    inputs = rep.inputs
+    csv_path = inputs.control / "control.csv"
+    if rep.found(csv_path, sec, "the closed-loop episodes", "control"):
+        rows = read_csv(csv_path)
+        run_json = inputs.control / "run.json"
+        if run_json.is_file():
+            rep.source(run_json, sec)
+        sec.p("The task (`docs/control.md`): push the coin to x^T = −1 mm in 1 ms steps, |ΔV| ≤ the same limit "
+              "for every policy; success is |x − x^T| < 0.01 mm on the true state; 10 episodes per policy, plant "
+              "and observation noise. Paper, Fig. 6: C2, mean of 10 episodes with the 25–75 % band; MPC reaches "
+              "the target in ≤ 200 iterations, SAC ~10,000, PD ~1,500, the heuristic ~500 (with noise 1 mm).")
+        noises = sorted({float(r["noise_std_m"]) for r in rows})
+        plants = list(dict.fromkeys(r["plant"] for r in rows))
+        policies = list(dict.fromkeys(r["policy"] for r in rows))
+        paper_plant = "surrogate:C2" if "surrogate:C2" in plants else plants[0]
+        f_rows, anchors = [], []
+        for pol in policies:
+            paper_it, paper_ms = PAPER_CONTROL.get(pol.split("+")[0], ("–", None))
+            for plant in sorted(plants, key=lambda p: p != paper_plant):       # the paper's plant first
+                cells = [pol, plant, paper_it, fmt(paper_ms, "g")]
+                for noise in noises:
+                    sel = [r for r in rows if r["policy"] == pol and r["plant"] == plant
+                           and float(r["noise_std_m"]) == noise]
+                    its = [num(r, "iterations_to_target") for r in sel if r.get("reached") in ("True", "1")]
+                    its = [i for i in its if i is not None]
+                    cells.append(f"{np.median(its):.0f} ({len(its)}/{len(sel)})" if its else f"– (0/{len(sel)})")
+                ms = [num(r, "ms_per_iteration") for r in rows if r["policy"] == pol and r["plant"] == plant]
+                ms = [m for m in ms if m is not None]
+                cells.append(fmt(float(np.median(ms)) if ms else None, ".3g"))
+                f_rows.append(cells)
+                anchors.append(f"control-{pol}" if plant == paper_plant else f"control-{pol}-{plant}")
+        heads = (["policy", "plant", "paper: iterations", "paper: ms / it"] + [f"noise {n:g} m" for n in noises]
+                 + ["ours: ms / it"])
+        sec.table(Table(heads, f_rows, anchors, caption="Iterations to target, median (reached / episodes), ours "
+                                                         "beside the paper's (its Fig. 6: f_s,2 = surrogate:C2, "
+                                                         "noise 0.001 m)"))
+        paper_noise = 1e-3 if 1e-3 in noises else noises[-1]
+        for pol in policies:
+            sel = [r for r in rows if r["policy"] == pol and r["plant"] == paper_plant
+                   and float(r["noise_std_m"]) == paper_noise]
+            its = [num(r, "iterations_to_target") for r in sel if r.get("reached") in ("True", "1")]
+            its = [i for i in its if i is not None]
+            ours = (f"median {np.median(its):.0f} ({len(its)}/{len(sel)} reached)" if its
+                    else f"never reached (0/{len(sel)})")
+            paper_it = PAPER_CONTROL.get(pol.split("+")[0], ("–",))[0]
+            rep.claims.append(Claim(f"Iterations to target, {pol} ({paper_plant}, noise {paper_noise:g} m)",
+                                    paper_it, ours, f"#control-{pol}",
+                                    _fewer(float(np.median(its)) if its else None, paper_it)))
+        md = inputs.control / "table.md"
+        if md.is_file():
+            rep.source(md, sec)
+            tables = markdown_tables(md.read_text())
+            if tables:
+                sec.table(Table(*tables[0], caption="Per policy, plant and noise (`table.md` of the run)"))
+        for pattern, cap in (("position_*.png", "coin position, mean and 25–75 % band per policy (Fig. 6)"),
+                             ("voltage_*.png", "voltage per policy"),
+                             ("inferred_*.png", "inferred φ per iteration beside the true value")):
+            # the paper's Fig. 6 first: plant f_s,2 (C2), the paper's noise (largest first)
+            for png in sorted(inputs.control.glob(pattern),
+                              key=lambda p: ("_C2_" not in p.name, _noise_key(p.stem), p.stem)):
+                sec.img(rep.copy_image(png, f"control_{png.name}"), f"`{png.stem}`: {cap}.")
+        inf_rows = []
+        for pol in policies:
+            for q, label in (("mass_kg", "m_c"), ("mu_b", "μ_b"), ("mu_t", "μ_t")):
+                errs = [abs(num(r, f"inferred_{q}") / num(r, f"true_{q}") - 1) * 100 for r in rows if r["policy"] == pol
+                        and num(r, f"inferred_{q}") is not None and num(r, f"true_{q}")]
+                if errs:
+                    inf_rows.append([pol, label, f"{np.median(errs):.3g}", f"{max(errs):.3g}", str(len(errs))])
+        if inf_rows:
+            sec.table(Table(["policy", "φ", "median error %", "max error %", "episodes"], inf_rows,
+                            [f"infer-{r[0]}-{i}" for i, r in enumerate(inf_rows)],
+                            caption="Online inference at the end of the episodes (paper: m_c within 10 % after "
+                                    "2,000 iterations, μ_b within 300)"))
+            mc = [r for r in inf_rows if r[1] == "m_c"]
+            if mc:
+                rep.claims.append(Claim("Inferred m_c", "≤ 10 % error within 2,000 iterations",
+                                        f"median {mc[0][2]} % ({mc[0][0]})", f"#infer-{mc[0][0]}-0"))
+        else:
+            sec.p("No policy in this run inferred φ (the MPC does): `make control` runs all four.")
+    bench = inputs.bench_control / "bench_control.json"
+    if rep.found(bench, sec, "the MPC step beside mpc.pytorch", "bench-control"):
+        b = json.loads(bench.read_text())
+        b_rows = [[r.get("solver", ""), fmt(r.get("median_ms"), ".3g"), fmt(r.get("median_ms_per_iteration"), ".3g"),
+                   fmt(r.get("mean_cost"), ".5g")] for r in b.get("rows", [])]
+        sec.table(Table(["solver", "median ms / MPC step", "ms / iteration", "mean cost"], b_rows,
+                        [f"mpc-{i}" for i in range(len(b_rows))],
+                        caption=f"MPC step (horizon {b.get('horizon')}, {b.get('iterations')} iterations), ours beside "
+                                f"mpc.pytorch on the same problem; paper: {b.get('paper_s', 1.2)} s per iteration"))
+        if b.get("mpc_pytorch_skipped"):
+            sec.p(f"mpc.pytorch was not run: {b['mpc_pytorch_skipped']}")
+        if b_rows:
+            rep.claims.append(Claim("MPC time per iteration", "1.2 s (mpc.pytorch)", f"{b_rows[0][1]} ms "
+                                    f"({b_rows[0][0]})", "#mpc-0"))
+    return sec
+
+
+def _fewer(ours, paper: str) -> str:
+    """Our iteration count against the paper's "≤ 200" / "~1,500": fewer, similar or more."""
+    digits = re.sub(r"[^0-9]", "", paper)
+    if ours is None or not digits:
+        return "never reached" if ours is None and digits else ""
+    ref = float(digits)
+    return "fewer" if ours < 0.7 * ref else ("more" if ours > 1.3 * ref else "similar")
+
+
+def _noise_key(stem: str) -> float:
+    m = re.search(r"noise([0-9.e+-]+)$", stem)
+    try:
+        return -float(m.group(1)) if m else 0.0
+    except ValueError:
+        return 0.0

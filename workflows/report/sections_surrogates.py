@@ -1,0 +1,145 @@
+"""The report's surrogate sections: Table II, the box plot, rollouts and speed; the
+held-out voltage protocols."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from deapull.paper import PAPER_FEM_S, PAPER_TABLE2
+from deapull.workflows.report.document import Claim, Report, Section, Table
+from deapull.workflows.report.inputs import step_done
+from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
+
+MODEL_LABELS = {"f": "f (paper's law)", "f-coulomb": "f (tip contact)", "nn": "NN", "lstm": "LSTM"}
+
+
+def section_surrogates(rep: Report) -> Section:
+    sec = Section("surrogates", "Surrogates: Table II, box plot, rollouts, speed")
+    inputs = rep.inputs
+    csv_path = inputs.experiments / "experiments.csv"
+    if not rep.found(csv_path, sec, "the experiment sets", "experiments"):
+        return sec
+    rows = read_csv(csv_path)
+    meta = {}
+    jpath = inputs.experiments / "experiments.json"
+    if jpath.is_file():
+        rep.source(jpath, sec)
+        meta = json.loads(jpath.read_text())
+    paper = meta.get("paper") or PAPER_TABLE2
+    kinds = list(dict.fromkeys(r["model"] for r in rows))
+    sets = sorted({int(r["set"]) for r in rows})
+
+    def diverged(r) -> bool:
+        return r.get("diverged") in ("True", "true", "1")
+
+    def mean(kind, key):
+        """Mean over the sets; errors leave diverged rollouts out, times keep them."""
+        vals = [num(r, key) for r in rows if r["model"] == kind and (key == "rollout_ms" or not diverged(r))]
+        vals = [v for v in vals if v is not None]
+        return float(np.mean(vals)) if vals else None
+
+    quantities = [("mae_x_m", "x", 1e-4, "10⁻⁴ m", ".3g"), ("mae_Fx_N", "Fx", 1e-4, "10⁻⁴ N", ".3g"),
+                  ("mae_Fy_N", "Fy", 1e-4, "10⁻⁴ N", ".3g"),
+                  ("x_error_pct_travel", "x error, % of travel", 1.0, "%", ".3g"),
+                  ("rollout_ms", "1 s rollout", 1.0, "ms", ".4g")]
+    t_rows, anchors = [], []
+    for key, label, scale, unit, spec in quantities:
+        cells = [f"{label} ({unit})"]
+        for k in kinds:
+            v = mean(k, key)
+            cells.append(fmt(v / scale if v is not None else None, spec))
+        for k in ("f", "lstm", "nn"):
+            v = paper.get(key, {}).get(k)
+            cells.append(fmt(v / scale if v is not None else None, spec))
+        t_rows.append(cells)
+        anchors.append(f"table2-{key}")
+    div = ["diverged rollouts"] + [str(sum(1 for r in rows if r["model"] == k and diverged(r))) for k in kinds] \
+        + ["–"] * 3
+    t_rows.append(div)
+    anchors.append("table2-diverged")
+    sec.table(Table(["mean over sets " + ",".join(map(str, sets))] + [f"ours: {MODEL_LABELS.get(k, k)}" for k in kinds]
+                    + ["paper: f", "paper: LSTM", "paper: NN"], t_rows, anchors,
+                    caption="Table II: mean absolute errors of 1 s recursive rollouts, ours beside the paper's"))
+    sec.p("Set i trains on C_i, early-stops on C_i+1 and tests on C_i+2 (the paper's six sets). Diverged "
+          "rollouts are left out of the means and counted in the last row.")
+    for name, cap in (("x_error_boxplot.png", "|x error| per set and model (the paper's Fig. 5 box plot)."),
+                      ("rollouts.png", "x(t) of the FEM and of each model on each test setup.")):
+        p = inputs.experiments / name
+        if p.is_file():
+            sec.img(rep.copy_image(p, f"experiments_{name}"), cap)
+    fem = meta.get("fem_wall_time_s") or {}
+    fem_mean = float(np.mean(list(fem.values()))) if fem else None
+    s_rows = []
+    for k in kinds:
+        ms = mean(k, "rollout_ms")
+        p_ms = paper.get("rollout_ms", {}).get(k.split("-")[0] if k.startswith("f") else k)
+        s_rows.append([MODEL_LABELS.get(k, k), fmt(ms, ".3g"), fmt(p_ms, ".4g"),
+                       fmt(fem_mean / (ms / 1e3) if (fem_mean and ms) else None, ".3g"),
+                       fmt(PAPER_FEM_S / (p_ms / 1e3) if p_ms else None, ".3g")])
+    sec.table(Table(["model", "ours: 1 s rollout ms", "paper ms", "ours: speed-up vs our FEM",
+                     "paper: speed-up vs ABAQUS"], s_rows, [f"speed-{k}" for k in kinds],
+                    caption="Speed per model (batch 1, CPU)"))
+    per_set = [[r["set"], r["test"], MODEL_LABELS.get(r["model"], r["model"])]
+               + (["diverged"] * 3 if diverged(r) else [fmt(num(r, "mae_x_m"), ".3g"),
+                                                        fmt(num(r, "x_error_pct_travel"), ".3g"),
+                                                        fmt(num(r, "mae_Fy_N"), ".3g")])
+               + [fmt(num(r, "rollout_ms"), ".3g")] for r in rows]
+    sec.table(Table(["set", "test", "model", "MAE x m", "x error % travel", "MAE Fy N", "rollout ms"], per_set,
+                    caption="Per set"))
+    for k in kinds:
+        if k.startswith("f"):
+            v = mean(k, "mae_x_m")
+            pct = mean(k, "x_error_pct_travel")
+            rep.claims.append(Claim(f"MAE of x, {MODEL_LABELS.get(k, k)} (Table II)", "0.34 × 10⁻⁴ m",
+                                    _e4(v, "m"), "#table2-mae_x_m", _verdict(v, 0.34e-4)))
+            rep.claims.append(Claim(f"x error of {MODEL_LABELS.get(k, k)} relative to the motion", "≤ 5 %",
+                                    f"{pct:.3g} % of the travel" if pct is not None else _e4(None, ""),
+                                    "#table2-x_error_pct_travel",
+                                    "" if pct is None else ("same" if pct <= 5 else "differs")))
+    for k, paper_v in (("lstm", 3.86e-4), ("nn", 9.86e-4)):
+        if k in kinds:
+            v = mean(k, "mae_x_m")
+            rep.claims.append(Claim(f"MAE of x, {MODEL_LABELS[k]} (Table II)", f"{paper_v / 1e-4:.2f} × 10⁻⁴ m",
+                                    _e4(v, "m"), "#table2-mae_x_m", _verdict(v, paper_v)))
+    for k in (k for k in kinds if k.startswith("f")):
+        for key, paper_v, label in (("mae_Fx_N", 3.68e-4, "Fx"), ("mae_Fy_N", 12.01e-4, "Fy")):
+            v = mean(k, key)
+            rep.claims.append(Claim(f"MAE of {label}, {MODEL_LABELS.get(k, k)} (Table II)",
+                                    f"{paper_v / 1e-4:.2f} × 10⁻⁴ N", _e4(v, "N"), f"#table2-{key}",
+                                    _verdict(v, paper_v)))
+    if "f" in kinds:
+        ms = mean("f", "rollout_ms")
+        rep.claims.append(Claim("1 s rollout of f", "≤ 0.7 s", f"{fmt(ms, '.3g')} ms", "#speed-f",
+                                "" if ms is None else ("faster" if ms < 700 else "slower")))
+    return sec
+
+
+def _e4(value, unit: str) -> str:
+    """A Table II number in units of 1e-4, or why there is none."""
+    return f"{value / 1e-4:.3g} × 10⁻⁴ {unit}" if value is not None else "none: every rollout diverged"
+
+
+def _verdict(ours, paper) -> str:
+    if ours is None:
+        return ""
+    r = ours / paper
+    return "same order" if 0.3 <= r <= 3 else ("better" if r < 1 else "worse")
+
+
+def section_protocols(rep: Report) -> Section:
+    sec = Section("protocols", "Surrogates on held-out voltage protocols (issue 13)")
+    inputs = rep.inputs
+    md = inputs.protocols / "protocols.md"
+    if not md.is_file() and not step_done("excitation", inputs):
+        sec.lack(f"the excitation datasets under `{inputs.excitation}`", "excitation")
+    if not rep.found(md, sec, "the held-out-protocol table", "experiments-protocols"):
+        return sec
+    tables = markdown_tables(md.read_text())
+    for k, (headers, rows) in enumerate(tables[:2]):
+        sec.table(Table(headers, rows, [f"proto-{k}-{i}" for i in range(len(rows))],
+                        caption="x error in % of travel on held-out protocols and coins" if k == 0 else ""))
+    png = inputs.protocols / "protocols.png"
+    if png.is_file():
+        sec.img(rep.copy_image(png, "protocols.png"), "Rollouts on held-out protocols")
+    return sec

@@ -1,0 +1,46 @@
+"""Reading the studies' tables (CSV, Markdown pipe tables) and formatting their numbers."""
+from __future__ import annotations
+
+import csv
+import math
+import re
+from pathlib import Path
+
+
+def fmt(value, spec: str = ".3g", unit: str = "") -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return format(value, spec) + (f" {unit}" if unit else "")
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def num(row: dict, key: str) -> float | None:
+    try:
+        v = float(row.get(key, ""))
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def markdown_tables(text: str) -> list[tuple[list[str], list[list[str]]]]:
+    """Every pipe table of a Markdown text as (headers, rows)."""
+    tables, current = [], []
+    for line in text.splitlines() + [""]:
+        if line.strip().startswith("|"):
+            current.append(line.strip())
+            continue
+        if len(current) >= 2:
+            cells = [_split_row(r) for r in current]
+            tables.append((cells[0], [c for c in cells[2:]]))
+        current = []
+    return tables
+
+
+def _split_row(line: str) -> list[str]:
+    cells = re.split(r"(?<!\\)\|", line.strip().strip("|"))
+    return [c.strip().replace("\\|", "|") for c in cells]
+
