@@ -565,3 +565,21 @@ def describe_keys() -> list[tuple[str, str, str, str]]:
             default = "required" if f.default is REQUIRED else repr(f.default)
             rows.append((f"{name}.{f.name}", default, _allowed(f.metadata), f.metadata["doc"]))
     return rows
+
+
+def from_resolved_toml(text: str) -> Scene:
+    """The scene a dataset was made with, from its ``scene_toml`` attribute.
+
+    Files written before ``contact.penalty_N_m3`` carry ``contact.penalty_scale`` (k_n =
+    penalty_scale · E / h_tip, h_tip the tip element's length along x): it is converted, so
+    that every dataset this project has written stays readable."""
+    raw = tomllib.loads(text)
+    contact = raw.get("contact", {})
+    if "penalty_scale" in contact:
+        mesh, dea = raw.get("mesh", {}), raw.get("dea", {})
+        n = mesh.get("n_length", 16) * 2 ** mesh.get("level", 0)
+        L, g = dea.get("length_m", 0.040), mesh.get("x_grading", 1.0)
+        r = g ** (1.0 / (n - 1)) if g != 1.0 and n > 1 else 1.0
+        h_tip = L / n if r == 1.0 else L * (r - 1.0) / (r ** n - 1.0)
+        contact["penalty_N_m3"] = contact.pop("penalty_scale") * dea.get("youngs_modulus_Pa", 0.56e6) / h_tip
+    return from_dict(raw)

@@ -107,3 +107,16 @@ def test_readme_documents_every_key():
     readme = (REPO / "README.md").read_text()
     missing = [key for key, *_ in scenes.describe_keys() if f"`{key}`" not in readme]
     assert not missing, f"README lacks {missing}"
+
+
+def test_a_dataset_written_before_the_penalty_in_n_m3_still_reads():
+    """The committed fixture's C3 (written with contact.penalty_scale = 10 on an 8-element mesh:
+    k_n = 10 E / 5 mm) reads with its penalty in N/m^3."""
+    import xarray as xr
+    from tests.conftest import DATA
+    text = xr.open_dataset(DATA / "sweep" / "C3.nc").attrs["scene_toml"]
+    assert "penalty_scale" in text
+    sc = scenes.from_resolved_toml(text)
+    assert sc.contact.penalty_N_m3 == pytest.approx(10 * 0.56e6 / 0.005, rel=1e-12)
+    again = scenes.from_resolved_toml(scenes.load("coin_pull").to_toml())
+    assert again.contact == scenes.load("coin_pull").contact and again.table == scenes.load("coin_pull").table

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import io
 import logging
-import tomllib
+
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -148,7 +148,7 @@ class CoinGeometry:
 def run_scene(run_attrs: dict):
     """The run's resolved scene (from the dataset's ``scene_toml``), None when it has none."""
     text = run_attrs.get("scene_toml", "")
-    return scenes.from_dict(tomllib.loads(text)) if text else None
+    return scenes.from_resolved_toml(text) if text else None
 
 
 def coin_geometry(sc) -> CoinGeometry | None:
