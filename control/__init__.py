@@ -15,3 +15,14 @@ Installed as ``deapull.control`` so that it never shadows python-control's ``con
 The experiment harness and the ``deapull control`` command are in
 :mod:`deapull.workflows.control` (see README, "Control").
 """
+from deapull.control import mpc
+from deapull.control.dynamics import CoinDynamics, coin_cost
+from deapull.control.env import CoinPushEnv
+from deapull.control.inference import InferenceConfig, OnlineInference
+from deapull.control.mpc_policy import MPCConfig, MPCPolicy, make_dynamics
+from deapull.control.plants import FEMPlant, Plant, PlantFailed, SurrogatePlant
+from deapull.control.policies import HeuristicPolicy, PDPolicy, Policy, SACPolicy
+
+__all__ = ["CoinDynamics", "CoinPushEnv", "FEMPlant", "HeuristicPolicy", "InferenceConfig", "MPCConfig", "MPCPolicy",
+           "OnlineInference", "PDPolicy", "Plant", "PlantFailed", "Policy", "SACPolicy", "SurrogatePlant", "coin_cost",
+           "make_dynamics", "mpc"]   # mpc: the module (the box-iLQR solver, mpc.solve)

@@ -10,3 +10,14 @@ registry: f with the paper's law, the tip-contact f-coulomb, NN, LSTM),
 (the paper's six sets). The commands (``deapull train|evaluate|experiments``) live in
 :mod:`deapull.workflows.cli_surrogate`.
 """
+from deapull.surrogate import models, store
+from deapull.surrogate.data import SetupData, Transitions, load_setup, load_sweep, transitions
+from deapull.surrogate.evaluate import Evaluation, evaluate
+from deapull.surrogate.models import KINDS, Surrogate, build, register
+from deapull.surrogate.phi import Phi
+from deapull.surrogate.rollout import Rollout, rollout
+from deapull.surrogate.train import TrainConfig, TrainResult, train
+
+__all__ = ["Evaluation", "KINDS", "Phi", "Rollout", "SetupData", "Surrogate", "TrainConfig", "TrainResult",
+           "Transitions", "build", "evaluate", "load_setup", "load_sweep", "models", "register", "rollout", "store",
+           "train", "transitions"]   # models, store: the modules (store.load / store.save)

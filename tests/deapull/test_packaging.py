@@ -36,7 +36,7 @@ def test_the_distribution_installs_one_top_level_package():
         assert tops == {"deapull"}
 
 
-PUBLIC = ("deapull", "deapull.meshing", "deapull.fem_solver", "deapull.workflows")
+PUBLIC = ("deapull", "deapull.meshing", "deapull.fem_solver", "deapull.surrogate", "deapull.control", "deapull.workflows")
 
 
 @pytest.mark.parametrize("package", PUBLIC)
