@@ -13,7 +13,7 @@ import pytest
 
 from deapull.errors import InputError
 from deapull.io import write_csv
-from deapull.paper import PAPER_TABLE2
+from deapull.paper import TABLE2
 from deapull.workflows import report
 from deapull.workflows.report import pictures
 from deapull.workflows.report.check import BrowserUnavailable, check_page, find_browser
@@ -194,7 +194,7 @@ def _fake_studies(inputs: report.Inputs) -> None:
             for i in (1, 2) for m, e in (("f", 0.5e-4), ("nn", 2e-4))]
     write_csv(inputs.experiments / "experiments.csv", rows, list(rows[0]))
     (inputs.experiments / "experiments.json").write_text(json.dumps(
-        {"rows": rows, "paper": PAPER_TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
+        {"rows": rows, "paper": TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
     for name in ("x_error_boxplot.png", "rollouts.png"):
         _png(inputs.experiments / name)
     episodes = [dict(policy=p, plant=f"surrogate:C{c}", noise_std_m=n, episode=k, reached=True,
