@@ -106,7 +106,8 @@ def main(argv=None) -> int:
     if "sweep" in res:
         s = res["sweep"]
         print(f"8-setup sweep, mpirun -n {s['np']}: {s['wall_s']:.1f} s (goal ≤ {TARGET_SWEEP_S:.0f} s; "
-              f"ABAQUS 8 x {PAPER_ABAQUS_S:g} s = {8 * PAPER_ABAQUS_S:.0f} s, ratio {8 * PAPER_ABAQUS_S / s['wall_s']:.1f}x)")
+              f"ABAQUS 8 x {PAPER_ABAQUS_S:g} s = {8 * PAPER_ABAQUS_S:.0f} s, "
+              f"ratio {8 * PAPER_ABAQUS_S / s['wall_s']:.1f}x)")
     return 0
 
 

@@ -92,7 +92,8 @@ def section_control(rep: Report) -> Section:
                                     f"{INFER_MU_B_ITERATIONS})"))
             mc = [r for r in inf_rows if r[1] == "m_c"]
             if mc:
-                rep.claims.append(Claim("Inferred m_c", f"≤ {INFER_ERROR_PCT:g} % error within {INFER_MASS_ITERATIONS:,} iterations",
+                rep.claims.append(Claim("Inferred m_c",
+                                        f"≤ {INFER_ERROR_PCT:g} % error within {INFER_MASS_ITERATIONS:,} iterations",
                                         f"median {mc[0][2]} % ({mc[0][0]})", f"#infer-{mc[0][0]}-0"))
         else:
             sec.p("No policy in this run inferred φ (the MPC does): `make control` runs all four.")
@@ -104,12 +105,13 @@ def section_control(rep: Report) -> Section:
         sec.table(Table(["solver", "median ms / MPC step", "ms / iteration", "mean cost"], b_rows,
                         [f"mpc-{i}" for i in range(len(b_rows))],
                         caption=f"MPC step (horizon {b.get('horizon')}, {b.get('iterations')} iterations), ours beside "
-                                f"mpc.pytorch on the same problem; paper: {b.get('paper_s', MPC_S_PER_ITERATION)} s per iteration"))
+                                "mpc.pytorch on the same problem; paper: "
+                                f"{b.get('paper_s', MPC_S_PER_ITERATION)} s per iteration"))
         if b.get("mpc_pytorch_skipped"):
             sec.p(f"mpc.pytorch was not run: {b['mpc_pytorch_skipped']}")
         if b_rows:
-            rep.claims.append(Claim("MPC time per iteration", f"{MPC_S_PER_ITERATION:g} s (mpc.pytorch)", f"{b_rows[0][1]} ms "
-                                    f"({b_rows[0][0]})", "#mpc-0"))
+            rep.claims.append(Claim("MPC time per iteration", f"{MPC_S_PER_ITERATION:g} s (mpc.pytorch)",
+                                    f"{b_rows[0][1]} ms ({b_rows[0][0]})", "#mpc-0"))
     return sec
 
 

@@ -37,7 +37,8 @@ def section_model(rep: Report) -> Section:
          "dea.active_thickness_m, dea.passive_thickness_m"),
         ("film thickness (field = V / film)", f"{d.film_thickness_m * 1e6:g} µm", "dea.film_thickness_m"),
         ("material", f"{d.material}, E = {d.youngs_modulus_Pa / 1e6:g} MPa, ν = {d.poisson_ratio:g} "
-         f"(paper: E = {YOUNGS_MODULUS_PA / 1e6:g} MPa, ν = {POISSON_RATIO:g})", "dea.material, dea.youngs_modulus_Pa, dea.poisson_ratio"),
+         f"(paper: E = {YOUNGS_MODULUS_PA / 1e6:g} MPa, ν = {POISSON_RATIO:g})",
+         "dea.material, dea.youngs_modulus_Pa, dea.poisson_ratio"),
         ("ε_r, elastomer density", f"{d.relative_permittivity:g}, {d.density_kg_m3:g} kg/m³",
          "dea.relative_permittivity, dea.density_kg_m3"),
         ("clamp gap (gravity pre-load)", f"{d.clamp_gap_m * 1e3:g} mm", "dea.clamp_gap_m"),
@@ -189,12 +190,14 @@ def section_sweep(rep: Report) -> Section:
           f"{CONTACT_LOST_V:g} V on (ours: the last column; – = the DEA still touches the coin at 400 V).")
     if mean_wall is not None:
         sec.p(f"Mean wall time per setup {mean_wall:.1f} s for {np.mean(pts):.0f} points (ABAQUS in the paper: "
-              f"{ABAQUS_S:g} s for {ABAQUS_POINTS} points), {mean_wall / np.mean(pts) * 1e3:.0f} ms per point; ranks as in the table.")
+              f"{ABAQUS_S:g} s for {ABAQUS_POINTS} points), {mean_wall / np.mean(pts) * 1e3:.0f} ms per point; "
+              "ranks as in the table.")
         rep.claims.append(Claim("FEM wall time, one 1 s setup", f"{ABAQUS_S:g} s (ABAQUS, {ABAQUS_POINTS} points)",
                                 f"{mean_wall:.1f} s (dolfinx, {np.mean(pts):.0f} points, mean of {len(walls)})",
                                 "#sweep-" + facts[0]["setup"],
                                 "faster" if mean_wall < ABAQUS_S else "slower"))
-    rep.claims.append(Claim("Points per setup", f"{ABAQUS_POINTS} (§VI-A); {DATASET_POINTS[0]}–{DATASET_POINTS[1]} (§V)",
+    rep.claims.append(Claim("Points per setup",
+                            f"{ABAQUS_POINTS} (§VI-A); {DATASET_POINTS[0]}–{DATASET_POINTS[1]} (§V)",
                             str(min(pts)) if min(pts) == max(pts) else f"{min(pts)}–{max(pts)}",
                             "#sweep-" + facts[0]["setup"]))
     c3 = next((f for f in facts if f["setup"] == "C3"), facts[0])
@@ -269,8 +272,8 @@ def section_fidelity(rep: Report) -> Section:
     default = next((r for r in rows if r.get("is_default") in ("True", "true", "1")), None)
     if default is not None:
         rep.claims.append(Claim("FEM accuracy of the shipped discretisation", "not reported (ABAQUS C3D8E, "
-                                f"{ABAQUS_ELEMENTS_PER_MEMBRANE} elements per membrane)", f"{fmt(num(default, 'error_pct'), '.3g')} % against the "
-                                "reference rung", f"#fid-{default.get('case')}"))
+                                f"{ABAQUS_ELEMENTS_PER_MEMBRANE} elements per membrane)",
+                                f"{fmt(num(default, 'error_pct'), '.3g')} % against the reference rung", f"#fid-{default.get('case')}"))
     return sec
 
 

@@ -112,8 +112,8 @@ def section_surrogates(rep: Report) -> Section:
                                     _verdict(v, paper_v)))
     if "f" in kinds:
         ms = mean("f", "rollout_ms")
-        rep.claims.append(Claim("1 s rollout of f", f"≤ {ROLLOUT_MS['f'] / 1e3:g} s", f"{fmt(ms, '.3g')} ms", "#speed-f",
-                                "" if ms is None else ("faster" if ms < ROLLOUT_MS["f"] else "slower")))
+        rep.claims.append(Claim("1 s rollout of f", f"≤ {ROLLOUT_MS['f'] / 1e3:g} s", f"{fmt(ms, '.3g')} ms",
+                                "#speed-f", "" if ms is None else ("faster" if ms < ROLLOUT_MS["f"] else "slower")))
     return sec
 
 
