@@ -6,29 +6,22 @@ Arguments are checked before any work; bad input raises :class:`deapull.errors.I
 """
 from __future__ import annotations
 
-import logging
-
 from deapull.errors import InputError
-
-log = logging.getLogger(__name__)
-
-
-def _inputs(args):
-    from deapull.workflows.report import Inputs    # lazy: the CLI loads every sub-command's module
-    return Inputs.under(args.outputs, args.data, fields=args.fields, fidelity=args.fidelity_dir,
-                        stability=args.stability_dir, experiments=args.experiments_dir, control=args.control_dir,
-                        bench_control=args.bench_control_dir)
 
 
 def cmd_report(args) -> int:
-    from deapull.workflows import report             # lazy: it imports matplotlib and tqdm
-    inputs = _inputs(args)
+    # here, not at the top: the CLI imports every sub-command's module, and the report package
+    # imports matplotlib
+    from deapull.workflows import report
+    from deapull.workflows.report.check import check_page, find_browser
+    inputs = report.Inputs.under(args.outputs, args.data, fields=args.fields, fidelity=args.fidelity_dir,
+                                 stability=args.stability_dir, experiments=args.experiments_dir,
+                                 control=args.control_dir, bench_control=args.bench_control_dir)
     if args.missing_steps:
         for name in report.missing_steps(inputs):
             print(name)
         return 0
     if args.check == "yes":
-        from deapull.workflows.report.check import find_browser
         if find_browser(args.browser) is None:
             raise InputError("--check yes: no browser (apt-get install chromium; pip install playwright)")
     summary = report.build(args.out, inputs, frames=args.frames, progress=not args.no_progress)
@@ -39,7 +32,6 @@ def cmd_report(args) -> int:
         print(f"missing: {step.what}: {step.make}")
     if args.check == "no":
         return 0
-    from deapull.workflows.report.check import check_page, find_browser
     if find_browser(args.browser) is None:
         print("browser check skipped: no chromium/playwright (apt-get install chromium; pip install playwright)")
         return 0

@@ -37,13 +37,14 @@ from deapull import provenance
 from deapull import scene as scenes
 from deapull.errors import InputError
 from deapull.io import atomic_write, markdown_table, write_csv, write_json, write_text
+from deapull.paper import CONTROL
 
 POLICIES = ("mpc", "sac", "pd", "heur", "mpc+kf", "pd+kf")
 PLANT_KINDS = ("surrogate", "fem")
 #: the choices of `--phi-prior`: maximum likelihood (the paper) or control.inference.COIN_PRIOR
 PHI_PRIORS = ("none", "coins")
-#: the paper's results (§VI-B): iterations to target and time per iteration
-PAPER = {"mpc": ("≤ 200", 1200.0), "sac": ("~10,000", 5.0), "pd": ("~1,500", 1.0), "heur": ("~500", None)}
+#: the paper's results (§VI-B): iterations to target and time per iteration (deapull.paper)
+PAPER = CONTROL
 #: φ fields reported (true and inferred)
 PHI_FIELDS = ("mass_kg", "mu_b", "mu_t", "v_threshold_V")
 COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max_V", "step_limit", "hold_steps",

@@ -13,9 +13,10 @@ import pytest
 
 from deapull.errors import InputError
 from deapull.io import write_csv
-from deapull.paper import PAPER_TABLE2
+from deapull.paper import TABLE2
 from deapull.workflows import report
-from deapull.workflows.report import pictures
+from deapull.workflows.report import assemble, pictures
+from deapull.workflows.report.document import Claim, Report, Section
 from deapull.workflows.report.check import BrowserUnavailable, check_page, find_browser
 from tests.conftest import REPO, SWEEP
 
@@ -162,6 +163,26 @@ def test_rebuild_drops_images_no_longer_shown(tmp_path):
     assert not (out / "img" / "fidelity_pareto.png").exists() and "fidelity" in summary["missing"]
 
 
+def test_a_section_is_one_function_registered_in_one_place(tmp_path, monkeypatch):
+    """A function of the Report added to assemble.SECTIONS shows on the page, in the contents, and
+    its claim and missing step reach the summary."""
+    def extra(rep: Report) -> Section:
+        sec = Section("extra", "An extra section")
+        sec.p(f"reads `{rep.inputs.data}`")
+        rep.claims.append(Claim("An extra number", "1", "2", "#extra", "differs"))
+        sec.lack("the extra study", "control")
+        return sec
+
+    monkeypatch.setattr(assemble, "SECTIONS", assemble.SECTIONS + (("extra", extra),))
+    out = tmp_path / "report"
+    summary = report.build(out, _inputs(tmp_path, tmp_path / "data"), progress=False)
+    md = (out / "report.md").read_text()
+    assert "## An extra section" in md and "[An extra section](#extra)" in md
+    assert md.index("## An extra section") > md.index("## Control") and f"reads `{tmp_path / 'data'}`" in md
+    assert summary["claims"][-1]["what"] == "An extra number" and "control" in summary["missing"]
+    assert '<section id="extra"><h2>An extra section</h2>' in (out / "index.html").read_text()
+
+
 def _png(path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -194,7 +215,7 @@ def _fake_studies(inputs: report.Inputs) -> None:
             for i in (1, 2) for m, e in (("f", 0.5e-4), ("nn", 2e-4))]
     write_csv(inputs.experiments / "experiments.csv", rows, list(rows[0]))
     (inputs.experiments / "experiments.json").write_text(json.dumps(
-        {"rows": rows, "paper": PAPER_TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
+        {"rows": rows, "paper": TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
     for name in ("x_error_boxplot.png", "rollouts.png"):
         _png(inputs.experiments / name)
     episodes = [dict(policy=p, plant=f"surrogate:C{c}", noise_std_m=n, episode=k, reached=True,

@@ -20,7 +20,7 @@ The modules, one job each:
 
 * :mod:`.inputs` — where each study's outputs are read, the make steps, what is missing;
 * :mod:`.document` — sections, tables, claims and the registry of source files (:class:`Report`);
-* :mod:`.build` — the sections in page order (:data:`build.SECTIONS`, the one place a section
+* :mod:`.assemble` — the sections in page order (:data:`assemble.SECTIONS`, the one place a section
   is registered) and the build;
 * ``sections_*`` — the sections, one function ``f(rep) -> Section`` each (FEM, surrogates,
   control, and the page's summary and provenance);
@@ -28,7 +28,7 @@ The modules, one job each:
 * :mod:`.tabular` — reading CSV and Markdown tables, formatting numbers; :mod:`.versions` —
   package versions and the machine; :mod:`.check` — the page in a real browser.
 """
-from deapull.workflows.report.build import SECTIONS, build
+from deapull.workflows.report.assemble import SECTIONS, build
 from deapull.workflows.report.inputs import SETUPS, STEP, STEPS, Inputs, missing_steps
 
 __all__ = ["SECTIONS", "SETUPS", "STEP", "STEPS", "Inputs", "build", "missing_steps"]

@@ -86,7 +86,7 @@ def check_page(index, browser: str | None = None, timeout_s: float = 60.0) -> Pa
     if exe is None:
         raise BrowserUnavailable("no browser to check the page: apt-get install chromium and pip install "
                                  "playwright (never `playwright install`)")
-    from playwright.sync_api import sync_playwright
+    from playwright.sync_api import sync_playwright   # here: playwright is optional (the browser extra)
     result = PageCheck(browser=exe)
     with tempfile.TemporaryDirectory(prefix="deapull-chromium-") as profile, sync_playwright() as pw:
         context = pw.chromium.launch_persistent_context(profile, executable_path=exe, headless=True,

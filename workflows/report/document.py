@@ -1,7 +1,7 @@
 """The page as data: sections of blocks (paragraphs, tables, images, missing steps), the
 paper-against-ours claims, and the registry of the files every number came from.
 
-:class:`Report` collects them while the sections are built (:mod:`.build`); :mod:`.render`
+:class:`Report` collects them while the sections are built (:mod:`.assemble`); :mod:`.render`
 turns them into HTML and Markdown.
 """
 from __future__ import annotations

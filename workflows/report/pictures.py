@@ -24,11 +24,21 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
+import h5py
+import matplotlib
 import numpy as np
 
-from deapull import dataset, scene as scenes
-from deapull.errors import InputError
-from deapull.io import atomic_write
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.collections import PolyCollection  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+from PIL import Image  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from deapull import dataset, scene as scenes  # noqa: E402
+from deapull.errors import InputError  # noqa: E402
+from deapull.io import atomic_write  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +61,6 @@ class Fields:
     keys: tuple                 # HDF5 dataset path of each frame
 
     def displacement(self, frame: int) -> np.ndarray:
-        import h5py
         with h5py.File(self.path.with_suffix(".h5"), "r") as f:
             return np.asarray(f[self.keys[frame]][:], dtype=float)
 
@@ -66,7 +75,6 @@ def _h5_ref(item: ET.Element, xdmf: Path) -> tuple[Path, str]:
 
 def read_fields(xdmf) -> Fields:
     """Read the mesh and the frame list of an XDMF field file (data stays in HDF5 until needed)."""
-    import h5py
     xdmf = Path(xdmf)
     if not xdmf.is_file():
         raise InputError(f"field file {str(xdmf)!r}: not found (make it with `deapull solve ... --fields-every N`)")
@@ -232,7 +240,6 @@ def _coin_polys(c: CoinGeometry, x_shift: float, n: int = 36) -> list[np.ndarray
 
 def draw(ax, s: Scene3D, frame: int, elev: float, azim: float, cmap="viridis"):
     """Draw one frame on a 3D axes; returns the polygon collection (for a colour bar)."""
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
     u = s.displacement(frame)
     P = (s.points + u) * 1e3
     P = P[:, [0, 2, 1]]                      # plot (x, z, y): y is up
@@ -263,8 +270,6 @@ def draw(ax, s: Scene3D, frame: int, elev: float, azim: float, cmap="viridis"):
 
 def draw_side(ax, s: Scene3D, frame: int, cmap="viridis"):
     """Side view: the boundary polygons projected on the x-y plane, far ones (+z) first."""
-    from matplotlib.collections import PolyCollection
-    from matplotlib.patches import Rectangle
     u = s.displacement(frame)
     P = (s.points + u) * 1e3
     order = np.argsort(-P[s.polys][:, :, 2].mean(axis=1))     # the viewer looks from -z
@@ -299,9 +304,6 @@ def _coin_x_mm(s: Scene3D, frame: int) -> float:
 
 def stage_picture(s: Scene3D, stage: str, frame: int, png: Path, dpi: int = 100) -> Path:
     """Side and 3/4 views of one frame, coloured by |u|, into ``png`` (atomic)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     title = dict(STAGES)[stage]
     fig = plt.figure(figsize=(12, 3.6))
     ax = fig.add_axes((0.06, 0.2, 0.42, 0.62))
@@ -321,11 +323,6 @@ def stage_picture(s: Scene3D, stage: str, frame: int, png: Path, dpi: int = 100)
 
 def animation(s: Scene3D, gif: Path, frames: int = 30, dpi: int = 70, progress: bool = True) -> Path:
     """3/4 view of up to ``frames`` frames, evenly spread over the run, as an animated GIF (Pillow)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from PIL import Image
-    from tqdm import tqdm
     picks = np.unique(np.linspace(0, len(s.fields.times) - 1, max(2, frames)).astype(int))
     images = []
     _, elev, azim = VIEWS[1]

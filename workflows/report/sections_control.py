@@ -7,7 +7,8 @@ import re
 
 import numpy as np
 
-from deapull.paper import PAPER_CONTROL
+from deapull.paper import (CONTROL, CONTROL_NOISE_M, INFER_ERROR_PCT, INFER_MASS_ITERATIONS,
+                           INFER_MU_B_ITERATIONS, MPC_S_PER_ITERATION)
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
 
@@ -24,14 +25,15 @@ def section_control(rep: Report) -> Section:
         sec.p("The task (`docs/control.md`): push the coin to x^T = −1 mm in 1 ms steps, |ΔV| ≤ the same limit "
               "for every policy; success is |x − x^T| < 0.01 mm on the true state; 10 episodes per policy, plant "
               "and observation noise. Paper, Fig. 6: C2, mean of 10 episodes with the 25–75 % band; MPC reaches "
-              "the target in ≤ 200 iterations, SAC ~10,000, PD ~1,500, the heuristic ~500 (with noise 1 mm).")
+              f"the target in {CONTROL['mpc'][0]} iterations, SAC {CONTROL['sac'][0]}, PD {CONTROL['pd'][0]}, the "
+              f"heuristic {CONTROL['heur'][0]} (with noise {CONTROL_NOISE_M * 1e3:g} mm).")
         noises = sorted({float(r["noise_std_m"]) for r in rows})
         plants = list(dict.fromkeys(r["plant"] for r in rows))
         policies = list(dict.fromkeys(r["policy"] for r in rows))
         paper_plant = "surrogate:C2" if "surrogate:C2" in plants else plants[0]
         f_rows, anchors = [], []
         for pol in policies:
-            paper_it, paper_ms = PAPER_CONTROL.get(pol.split("+")[0], ("–", None))
+            paper_it, paper_ms = CONTROL.get(pol.split("+")[0], ("–", None))
             for plant in sorted(plants, key=lambda p: p != paper_plant):       # the paper's plant first
                 cells = [pol, plant, paper_it, fmt(paper_ms, "g")]
                 for noise in noises:
@@ -49,8 +51,8 @@ def section_control(rep: Report) -> Section:
                  + ["ours: ms / it"])
         sec.table(Table(heads, f_rows, anchors, caption="Iterations to target, median (reached / episodes), ours "
                                                          "beside the paper's (its Fig. 6: f_s,2 = surrogate:C2, "
-                                                         "noise 0.001 m)"))
-        paper_noise = 1e-3 if 1e-3 in noises else noises[-1]
+                                                         f"noise {CONTROL_NOISE_M:g} m)"))
+        paper_noise = CONTROL_NOISE_M if CONTROL_NOISE_M in noises else noises[-1]
         for pol in policies:
             sel = [r for r in rows if r["policy"] == pol and r["plant"] == paper_plant
                    and float(r["noise_std_m"]) == paper_noise]
@@ -58,7 +60,7 @@ def section_control(rep: Report) -> Section:
             its = [i for i in its if i is not None]
             ours = (f"median {np.median(its):.0f} ({len(its)}/{len(sel)} reached)" if its
                     else f"never reached (0/{len(sel)})")
-            paper_it = PAPER_CONTROL.get(pol.split("+")[0], ("–",))[0]
+            paper_it = CONTROL.get(pol.split("+")[0], ("–",))[0]
             rep.claims.append(Claim(f"Iterations to target, {pol} ({paper_plant}, noise {paper_noise:g} m)",
                                     paper_it, ours, f"#control-{pol}",
                                     _fewer(float(np.median(its)) if its else None, paper_it)))
@@ -85,11 +87,13 @@ def section_control(rep: Report) -> Section:
         if inf_rows:
             sec.table(Table(["policy", "φ", "median error %", "max error %", "episodes"], inf_rows,
                             [f"infer-{r[0]}-{i}" for i, r in enumerate(inf_rows)],
-                            caption="Online inference at the end of the episodes (paper: m_c within 10 % after "
-                                    "2,000 iterations, μ_b within 300)"))
+                            caption="Online inference at the end of the episodes (paper: m_c within "
+                                    f"{INFER_ERROR_PCT:g} % after {INFER_MASS_ITERATIONS:,} iterations, μ_b within "
+                                    f"{INFER_MU_B_ITERATIONS})"))
             mc = [r for r in inf_rows if r[1] == "m_c"]
             if mc:
-                rep.claims.append(Claim("Inferred m_c", "≤ 10 % error within 2,000 iterations",
+                rep.claims.append(Claim("Inferred m_c",
+                                        f"≤ {INFER_ERROR_PCT:g} % error within {INFER_MASS_ITERATIONS:,} iterations",
                                         f"median {mc[0][2]} % ({mc[0][0]})", f"#infer-{mc[0][0]}-0"))
         else:
             sec.p("No policy in this run inferred φ (the MPC does): `make control` runs all four.")
@@ -101,17 +105,18 @@ def section_control(rep: Report) -> Section:
         sec.table(Table(["solver", "median ms / MPC step", "ms / iteration", "mean cost"], b_rows,
                         [f"mpc-{i}" for i in range(len(b_rows))],
                         caption=f"MPC step (horizon {b.get('horizon')}, {b.get('iterations')} iterations), ours beside "
-                                f"mpc.pytorch on the same problem; paper: {b.get('paper_s', 1.2)} s per iteration"))
+                                "mpc.pytorch on the same problem; paper: "
+                                f"{b.get('paper_s', MPC_S_PER_ITERATION)} s per iteration"))
         if b.get("mpc_pytorch_skipped"):
             sec.p(f"mpc.pytorch was not run: {b['mpc_pytorch_skipped']}")
         if b_rows:
-            rep.claims.append(Claim("MPC time per iteration", "1.2 s (mpc.pytorch)", f"{b_rows[0][1]} ms "
-                                    f"({b_rows[0][0]})", "#mpc-0"))
+            rep.claims.append(Claim("MPC time per iteration", f"{MPC_S_PER_ITERATION:g} s (mpc.pytorch)",
+                                    f"{b_rows[0][1]} ms ({b_rows[0][0]})", "#mpc-0"))
     return sec
 
 
 def _fewer(ours, paper: str) -> str:
-    """Our iteration count against the paper's "≤ 200" / "~1,500": fewer, similar or more."""
+    """Our iteration count against the paper's wording ("≤ N" or "~N"): fewer, similar or more."""
     digits = re.sub(r"[^0-9]", "", paper)
     if ours is None or not digits:
         return "never reached" if ours is None and digits else ""

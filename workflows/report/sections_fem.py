@@ -8,7 +8,8 @@ import math
 import numpy as np
 
 from deapull import dataset, scene as scenes
-from deapull.paper import PAPER_FEM_S, THRESHOLD_M
+from deapull.paper import (ABAQUS_COIN_ELEMENTS, ABAQUS_ELEMENTS_PER_MEMBRANE, ABAQUS_POINTS, ABAQUS_S,
+                           CONTACT_LOST_V, DATASET_POINTS, POISSON_RATIO, THRESHOLD_M, YOUNGS_MODULUS_PA)
 from deapull.workflows.report import pictures
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.inputs import SCENE, SETUPS, fields_run
@@ -36,7 +37,8 @@ def section_model(rep: Report) -> Section:
          "dea.active_thickness_m, dea.passive_thickness_m"),
         ("film thickness (field = V / film)", f"{d.film_thickness_m * 1e6:g} µm", "dea.film_thickness_m"),
         ("material", f"{d.material}, E = {d.youngs_modulus_Pa / 1e6:g} MPa, ν = {d.poisson_ratio:g} "
-         f"(paper: E = 0.56 MPa, ν = 0.5)", "dea.material, dea.youngs_modulus_Pa, dea.poisson_ratio"),
+         f"(paper: E = {YOUNGS_MODULUS_PA / 1e6:g} MPa, ν = {POISSON_RATIO:g})",
+         "dea.material, dea.youngs_modulus_Pa, dea.poisson_ratio"),
         ("ε_r, elastomer density", f"{d.relative_permittivity:g}, {d.density_kg_m3:g} kg/m³",
          "dea.relative_permittivity, dea.density_kg_m3"),
         ("clamp gap (gravity pre-load)", f"{d.clamp_gap_m * 1e3:g} mm", "dea.clamp_gap_m"),
@@ -52,7 +54,7 @@ def section_model(rep: Report) -> Section:
         ("solver", f"{sc.solver.formulation}" + (" (Taylor–Hood u–p)" if sc.solver.formulation == "mixed" else "")
          + f", electrostatics {sc.solver.electrostatics}",
          "solver.*"),
-        ("time", f"t ∈ [0, {ld.end_time_s:g}] s, dt ≤ {sc.time.dt_max_s * 1e3:.3g} ms (≥ 700 points)",
+        ("time", f"t ∈ [0, {ld.end_time_s:g}] s, dt ≤ {sc.time.dt_max_s * 1e3:.3g} ms (≥ {ABAQUS_POINTS} points)",
          "time.dt_max_s"),
         ("gravity", f"{sc.gravity_m_s2:g} m/s² along −y", "gravity_m_s2"),
         ("nominal field at V_max", f"{e0 / 1e6:.0f} MV/m (pull-in estimate ≈ {pullin / 1e6:.0f} MV/m)", "derived"),
@@ -107,7 +109,8 @@ def section_pictures(rep: Report) -> Section:
                                 f"from {v0:.0f} V", "#pictures", "caveat"))
     sec.p("Paper, Fig. 4: (a) the inactive DEA, (b) the static-friction stage (the DEA bends, the coin stays), "
           "(c) the kinetic stage (the coin moves). Ours shows the same three stages; the paper's ABAQUS mesh had "
-          "10 elements per membrane and 20 for the coin, ours is in the model table.")
+          f"{ABAQUS_ELEMENTS_PER_MEMBRANE} elements per membrane and {ABAQUS_COIN_ELEMENTS} for the coin, ours is in "
+          "the model table.")
     return sec
 
 
@@ -165,7 +168,7 @@ def section_sweep(rep: Report) -> Section:
     facts = [setup_facts(r) for r in runs.values()]
     rows, anchors = [], []
     for f in facts:
-        ratio = f["wall_s"] / PAPER_FEM_S if f["wall_s"] else None
+        ratio = f["wall_s"] / ABAQUS_S if f["wall_s"] else None
         rows.append([f["setup"], fmt(f["rho"] / 1e3 if f["rho"] else None, "g"), fmt(f["mu_t"], "g"),
                      fmt(f["mu_b"], "g"), fmt(f["mass_g"], ".4f"), str(f["points"]), fmt(f["travel_mm"], ".3f"),
                      fmt(f["max_Fy_mN"], ".2f"), fmt(f["V_slip"], ".0f"), fmt(f["V_cone"], ".0f"), fmt(f["V_T"], ".0f"),
@@ -174,7 +177,7 @@ def section_sweep(rep: Report) -> Section:
         anchors.append(f"sweep-{f['setup']}")
     sec.table(Table(["setup", "ρ g/cm³", "μ_t", "μ_b", "m_c g", "points", "travel mm", "max Fy mN",
                      "V slip onset (FEM)", "V friction cone", "V^T", "V contact lost", "wall s", "ranks",
-                     "wall / ABAQUS 130 s"], rows, anchors,
+                     f"wall / ABAQUS {ABAQUS_S:g} s"], rows, anchors,
                     caption="Per setup: stages, threshold voltages and wall time"))
     walls = [f["wall_s"] for f in facts if f["wall_s"]]
     pts = [f["points"] for f in facts]
@@ -184,15 +187,17 @@ def section_sweep(rep: Report) -> Section:
           "horizontal force leaves the cone, |Fx| ≥ μ_b (m_c g + Fy). **V slip onset**: the FEM's own stick → "
           "slip switch. The three agree when the coin starts to slide as soon as the cone is left; V^T lies a "
           "little later (10 µm of travel). The paper gives no V^T per setup; it assumes contact is lost from "
-          "300 V on (ours: the last column; – = the DEA still touches the coin at 400 V).")
+          f"{CONTACT_LOST_V:g} V on (ours: the last column; – = the DEA still touches the coin at 400 V).")
     if mean_wall is not None:
         sec.p(f"Mean wall time per setup {mean_wall:.1f} s for {np.mean(pts):.0f} points (ABAQUS in the paper: "
-              f"130 s for 700 points), {mean_wall / np.mean(pts) * 1e3:.0f} ms per point; ranks as in the table.")
-        rep.claims.append(Claim("FEM wall time, one 1 s setup", "130 s (ABAQUS, 700 points)",
+              f"{ABAQUS_S:g} s for {ABAQUS_POINTS} points), {mean_wall / np.mean(pts) * 1e3:.0f} ms per point; "
+              "ranks as in the table.")
+        rep.claims.append(Claim("FEM wall time, one 1 s setup", f"{ABAQUS_S:g} s (ABAQUS, {ABAQUS_POINTS} points)",
                                 f"{mean_wall:.1f} s (dolfinx, {np.mean(pts):.0f} points, mean of {len(walls)})",
                                 "#sweep-" + facts[0]["setup"],
-                                "faster" if mean_wall < PAPER_FEM_S else "slower"))
-    rep.claims.append(Claim("Points per setup", "700 (§VI-A); 1000–2000 (§V)",
+                                "faster" if mean_wall < ABAQUS_S else "slower"))
+    rep.claims.append(Claim("Points per setup",
+                            f"{ABAQUS_POINTS} (§VI-A); {DATASET_POINTS[0]}–{DATASET_POINTS[1]} (§V)",
                             str(min(pts)) if min(pts) == max(pts) else f"{min(pts)}–{max(pts)}",
                             "#sweep-" + facts[0]["setup"]))
     c3 = next((f for f in facts if f["setup"] == "C3"), facts[0])
@@ -217,18 +222,18 @@ def section_fem_accuracy(rep: Report) -> Section:
     for label, r in res.items():
         if label in ("sweep", "reference"):
             continue
-        rows.append([label, fmt(r["wall_s"], ".1f"), format(130.0 / r["wall_s"], ".1f") + "×", str(r["points"]),
+        rows.append([label, fmt(r["wall_s"], ".1f"), format(ABAQUS_S / r["wall_s"], ".1f") + "×", str(r["points"]),
                      str(r["dofs"]), str(r["newton_its"]), fmt(r["travel_mm"], ".4f"),
                      fmt(100 * r["travel_err"], "+.2f", "%"), fmt(100 * r["x_mae"], ".2f", "%")])
-    rows.append(["paper (ABAQUS)", "130", "1.0×", "700", "–", "–", "–", "–", "–"])
+    rows.append(["paper (ABAQUS)", f"{ABAQUS_S:g}", "1.0×", str(ABAQUS_POINTS), "–", "–", "–", "–", "–"])
     sec.table(Table(["run", "wall s", "vs ABAQUS", "points", "dofs", "Newton its", "travel mm", "travel err",
                      "x(t) MAE"], rows, [f"fem-{i}" for i in range(len(rows))],
                     caption="coin_pull C3 on one core; errors against the reference above"))
     if "sweep" in res:
         sw = res["sweep"]
         sec.p(f"The 8-setup sweep under `mpirun -n {sw['np']}`: {fmt(sw['wall_s'], '.1f', 's')} "
-              f"(ABAQUS 8 × 130 s = 1040 s).")
-        rep.claims.append(Claim("FEM time, 8 setups", "8 × 130 s (ABAQUS)", fmt(sw["wall_s"], ".0f", "s"),
+              f"(ABAQUS 8 × {ABAQUS_S:g} s = {8 * ABAQUS_S:g} s).")
+        rep.claims.append(Claim("FEM time, 8 setups", f"8 × {ABAQUS_S:g} s (ABAQUS)", fmt(sw["wall_s"], ".0f", "s"),
                                 "#fem-accuracy"))
     bound = ref.get("error_bound_rel")
     if bound is None:
@@ -266,9 +271,9 @@ def section_fidelity(rep: Report) -> Section:
               "reused).")
     default = next((r for r in rows if r.get("is_default") in ("True", "true", "1")), None)
     if default is not None:
-        rep.claims.append(Claim("FEM accuracy of the shipped discretisation", "not reported (ABAQUS C3D8E, 10 "
-                                "elements per membrane)", f"{fmt(num(default, 'error_pct'), '.3g')} % against the "
-                                "reference rung", f"#fid-{default.get('case')}"))
+        rep.claims.append(Claim("FEM accuracy of the shipped discretisation", "not reported (ABAQUS C3D8E, "
+                                f"{ABAQUS_ELEMENTS_PER_MEMBRANE} elements per membrane)",
+                                f"{fmt(num(default, 'error_pct'), '.3g')} % against the reference rung", f"#fid-{default.get('case')}"))
     return sec
 
 

@@ -1,5 +1,5 @@
-"""The build: the sections in page order, registered in one place (:data:`SECTIONS`), run
-over the outputs found and written as ``index.html``, ``report.md`` and ``report.json``."""
+"""The page assembled: the sections in page order, registered in one place (:data:`SECTIONS`),
+run over the outputs found and written as ``index.html``, ``report.md`` and ``report.json``."""
 from __future__ import annotations
 
 import logging
@@ -18,8 +18,8 @@ from deapull.workflows.report.render import render_html, render_markdown
 
 log = logging.getLogger(__name__)
 
-#: The page's body in order: (id, function of the Report returning its Section). A new
-#: section is one function ``f(rep) -> Section`` added here; :data:`FIRST` and :data:`LAST`
+#: The page's body in order: (name in the log, function of the Report returning its Section).
+#: A new section is one function ``f(rep) -> Section`` added here; :data:`FIRST` and :data:`LAST`
 #: run after the body (the summary reads the body's claims, the provenance its sources).
 SECTIONS = (("model", sections_fem.section_model),
             ("pictures", sections_fem.section_pictures),
