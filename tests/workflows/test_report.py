@@ -429,3 +429,35 @@ def test_pictures_from_a_real_solve(tmp_path):
     assert s3.mirrored and len(s3.polys) == 4 * 2 * (4 * 2 + 4 * 2 + 2 * 2)
     png = pictures.stage_picture(s3, "kinetic", len(s3.fields.times) - 1, tmp_path / "k.png")
     _png_ok(png)
+
+
+def test_a_diverged_model_is_never_better_or_faster_and_the_counts_come_from_the_rows(tmp_path):
+    """The paper's f diverges on every set (as on our FEM data): its rows say so and are 'not
+    reproduced', never 'better' or 'faster'; our variant is 'beyond the paper'; the summary's
+    counts are the rows' outcomes."""
+    data = _sweep(tmp_path, report.SETUPS)
+    inputs = _inputs(tmp_path, data)
+    _fake_studies(inputs)
+    rows = [dict(set=i, train=f"C{i}", val=f"C{i + 1}", test=f"C{i + 2}", model=m, mae_x_m=e, mae_Fx_N=1e-5,
+                 mae_Fy_N=2e-5, x_error_pct_travel=pct, rollout_ms=ms, diverged=div)
+            for i in (1, 2) for m, e, pct, ms, div in (("f", 1e-9, 0.1, 0.01, True), ("f-coulomb", 0.1e-4, 0.5, 5.0, False),
+                                                       ("nn", 2e-4, 9.0, 3.0, False), ("lstm", 9e-4, 12.0, 9.0, False))]
+    write_csv(inputs.experiments / "experiments.csv", rows, list(rows[0]))
+    (inputs.experiments / "experiments.json").write_text(json.dumps(
+        {"rows": rows, "paper": TABLE2, "fem_wall_time_s": {"C3": 60.0}}))
+    summary = report.build(tmp_path / "report", inputs, progress=False)
+    claims = summary["claims"]
+    f_rows = [c for c in claims if "f (paper's law)" in c["what"] or c["what"] == "1 s rollout of f"]
+    assert len(f_rows) == 5
+    for c in f_rows:
+        assert c["outcome"] == "not reproduced", c
+        assert not any(w in c["verdict"] for w in ("better", "faster", "lower error", "same")), c
+    ours = [c for c in claims if "f (tip contact)" in c["what"]]
+    assert ours and all(c["outcome"] == "beyond the paper" for c in ours)
+    order = next(c for c in claims if c["what"] == "Baselines' order (Table II)")
+    assert order["ours"] == "NN better than LSTM" and order["outcome"] == "not reproduced"
+    md = (tmp_path / "report" / "report.md").read_text()
+    n = {o: sum(1 for c in claims if c["outcome"] == o) for o in ("reproduced", "not reproduced", "beyond the paper")}
+    assert f"**{n['reproduced']} reproduced · {n['not reproduced']} not reproduced · {n['beyond the paper']} beyond " \
+           f"the paper**" in md
+    assert n["not reproduced"] >= 6

@@ -63,6 +63,11 @@ class Claim:
     ours: str
     anchor: str              # the section or table row with our number
     verdict: str = ""
+    outcome: str = ""        # one of OUTCOMES, or "" when the row is not judged
+
+
+#: what a claim says about the paper: its result holds here, it does not, or the row is ours alone
+OUTCOMES = ("reproduced", "not reproduced", "beyond the paper")
 
 
 class Report:

@@ -28,7 +28,7 @@ def plot_sweep(runs: dict, png: Path) -> Path:
     ax[0].legend(ncol=4, fontsize=8)
     for a in ax:
         a.grid(alpha=0.3)
-    fig.suptitle("The 8-setup sweep (paper, Fig. 5: C3): static stage, then the coin slides toward −x")
+    fig.suptitle("The 8-setup sweep (the paper's Fig. 4 stages): static friction, then the coin slides toward −x")
     fig.tight_layout()
     atomic_write(png, lambda p: fig.savefig(p, dpi=100, format="png"), suffix=".png")
     plt.close(fig)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as _dt
 
 from deapull import provenance
-from deapull.workflows.report.document import Report, Section, Table
+from deapull.workflows.report.document import OUTCOMES, Report, Section, Table
 from deapull.workflows.report.inputs import STEP
 from deapull.workflows.report.versions import machine, versions
 
@@ -30,12 +30,26 @@ def section_provenance(rep: Report) -> Section:
     return sec
 
 
+def outcome_counts(claims) -> dict[str, int]:
+    """How many claims say each outcome (``""``: not judged)."""
+    counts = {o: 0 for o in (*OUTCOMES, "")}
+    for c in claims:
+        counts[c.outcome] += 1
+    return counts
+
+
 def section_summary(rep: Report) -> Section:
     sec = Section("summary", "Does this reproduce the paper? Paper against ours")
     rep.claims.sort(key=lambda c: c.verdict == "caveat")          # stable: the caveats last
     if rep.claims:
-        sec.table(Table(["result", "paper", "ours", "where", "verdict"],
-                        [[c.what, c.paper, c.ours, f"[row]({c.anchor})", c.verdict or "–"] for c in rep.claims],
+        counts = outcome_counts(rep.claims)
+        sec.p("**" + " · ".join(f"{counts[o]} {o}" for o in OUTCOMES) + f"** ({counts['']} rows not judged), "
+              "counted from the rows below: *reproduced* = the paper's result holds with our FEM, *not reproduced* "
+              "= it does not (the row says why), *beyond the paper* = a model or measurement the paper does not "
+              "have.")
+        sec.table(Table(["result", "paper", "ours", "where", "verdict", "outcome"],
+                        [[c.what, c.paper, c.ours, f"[row]({c.anchor})", c.verdict or "–", c.outcome or "–"]
+                         for c in rep.claims],
                         [f"claim-{i}" for i in range(len(rep.claims))],
                         caption="Each paper number beside ours; 'row' links to the row it comes from", wrap=True))
     missing = [m for s in rep.sections for m in s.missing]
