@@ -38,6 +38,7 @@ read), the true state and error, ``success`` and ``reached_step`` (first success
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
@@ -67,6 +68,37 @@ POLICY_INFO = ("step", "t_s", "V_V", "dV_V")
 def policy_view(info: dict) -> dict:
     """The part of the env's ``info`` that a policy may see (:data:`POLICY_INFO`)."""
     return {k: info[k] for k in POLICY_INFO}
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """All that a policy may know of the task before an episode: numbers, never the env or the
+    plant (so a policy cannot read the true state). :meth:`CoinPushEnv.task_spec` makes it.
+
+    Attributes
+    ----------
+    target_m, tolerance_m : target x^T and success window (m)
+    dt_s : the plant's step (s)
+    dv_max_V, v_max_V : per-step limit of |ΔV| and largest voltage (V)
+    noise_std_m : standard deviation of the observation noise (m; 0: exact observations)
+    observation : names of the observation's entries
+    """
+    target_m: float
+    tolerance_m: float
+    dt_s: float
+    dv_max_V: float
+    v_max_V: float
+    noise_std_m: float
+    observation: tuple
+
+    @staticmethod
+    def position_of(obs) -> float:
+        """The observed (noisy) coin position x̃ (m) in an observation."""
+        return float(obs[0]) * POSITION_SCALE_M
+
+    def voltage_of(self, obs) -> float:
+        """The applied voltage (V) in an observation."""
+        return float(obs[1]) * self.v_max_V
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
@@ -141,10 +173,14 @@ class CoinPushEnv(gym.Env):
 
     # --- reading observations and writing actions ---------------------------------------
 
-    @staticmethod
-    def position_of(obs) -> float:
-        """The observed (noisy) coin position x̃ (m)."""
-        return float(obs[0]) * POSITION_SCALE_M
+    def task_spec(self) -> TaskSpec:
+        """What a policy may know of this task (:class:`TaskSpec`): the only thing
+        ``Policy.reset`` gets."""
+        return TaskSpec(target_m=self.target_m, tolerance_m=self.tolerance_m, dt_s=float(self.plant.dt),
+                        dv_max_V=self.dv_max_V, v_max_V=self.v_max_V, noise_std_m=self.noise_std_m,
+                        observation=tuple(self.OBSERVATION))
+
+    position_of = staticmethod(TaskSpec.position_of)
 
     def voltage_of(self, obs) -> float:
         """The applied voltage (V) in an observation."""

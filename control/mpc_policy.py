@@ -135,13 +135,13 @@ class MPCPolicy(Policy):
             raise InputError("an MPC without inference needs the φ to plan with")
         self.fixed_phi = None if phi is None else model.check_phi(phi).to(dtype=torch.float64)
         self.inference = None
-        self.env = None
+        self.spec = None
 
-    def reset(self, env) -> None:
+    def reset(self, spec) -> None:
         cfg = self.config
-        self.env, self.target_m, self.tolerance_m = env, float(env.target_m), float(env.tolerance_m)
-        self.dt, self.dv_max_V, self.v_max_V = float(env.plant.dt), float(env.dv_max_V), float(env.v_max_V)
-        noise = float(getattr(env, "noise_std_m", 0.0))
+        self.spec, self.target_m, self.tolerance_m = spec, float(spec.target_m), float(spec.tolerance_m)
+        self.dt, self.dv_max_V, self.v_max_V = float(spec.dt_s), float(spec.dv_max_V), float(spec.v_max_V)
+        noise = float(spec.noise_std_m)
         self.noisy = noise > 0
         self.kalman = None
         if cfg.filter == "kf":
@@ -183,7 +183,7 @@ class MPCPolicy(Policy):
     @torch.no_grad()
     def act(self, obs, info) -> float:
         cfg = self.config
-        x, V = self.env.position_of(obs), float(info["V_V"])
+        x, V = self.spec.position_of(obs), float(info["V_V"])
         if cfg.infer:
             start = time.perf_counter()
             self.inference.observe(x, V)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deapull.control.filters import FILTERS, ConstantVelocityKalman
 from deapull.errors import InputError
 from deapull.io import atomic_write, write_json
 
@@ -36,16 +37,17 @@ class Policy(ABC):
     name : str
         Short name for tables and plots (``pd``, ``heur``, ``sac``, ``mpc``).
 
-    The harness (:func:`deapull.workflows.control.run_episode`) calls ``reset(env)`` after
+    The harness (:func:`deapull.workflows.control.run_episode`) calls ``reset(spec)`` after
     every ``env.reset``, then ``act`` once per step; the wall time of ``act`` is the
-    policy's time per iteration.
+    policy's time per iteration. A policy sees the task's constants and the observations
+    only, never the env or the plant (tests/control/test_policies.py checks it).
     """
 
     name: str = ""
 
-    def reset(self, env) -> None:
-        """Start an episode on ``env`` (a :class:`~deapull.control.env.CoinPushEnv`, already
-        reset): read its constants (target, Δt, ΔV_max, V_max) and clear any memory."""
+    def reset(self, spec) -> None:
+        """Start an episode of the task ``spec`` (a :class:`~deapull.control.env.TaskSpec`:
+        target, Δt, ΔV_max, V_max, noise) and clear any memory."""
 
     @abstractmethod
     def act(self, obs: np.ndarray, info: dict) -> float:
@@ -93,7 +95,6 @@ class PDPolicy(Policy):
 
     def __init__(self, kp_V_per_mm: float = -0.5, kd_V_per_mm: float = 5.0, filter: str = "none",
                  accel_std: float = 0.05):
-        from deapull.control.filters import FILTERS
         if filter not in FILTERS:
             raise InputError(f"PD filter {filter!r}: choose one of {', '.join(FILTERS)}")
         self.kp, self.kd = float(kp_V_per_mm), float(kd_V_per_mm)
@@ -101,16 +102,14 @@ class PDPolicy(Policy):
         self.name = "pd" if filter == "none" else f"pd+{filter}"
         self.target_m, self.previous = float("nan"), None
 
-    def reset(self, env) -> None:
-        from deapull.control.filters import ConstantVelocityKalman
-        self.target_m, self.previous, self.env = env.target_m, None, env
+    def reset(self, spec) -> None:
+        self.target_m, self.previous, self.spec = spec.target_m, None, spec
         self.kalman = None
         if self.filter == "kf":
-            self.kalman = ConstantVelocityKalman(float(getattr(env, "noise_std_m", 0.0)), float(env.plant.dt),
-                                                 self.accel_std)
+            self.kalman = ConstantVelocityKalman(float(spec.noise_std_m), float(spec.dt_s), self.accel_std)
 
     def act(self, obs, info) -> float:
-        x = self.env.position_of(obs)
+        x = self.spec.position_of(obs)
         if self.kalman is not None:
             x = self.kalman.reset(x) if self.previous is None else self.kalman.update(x)
         e = (self.target_m - x) / 1e-3
@@ -201,8 +200,8 @@ class SACPolicy(Policy):
         meta = json.loads((folder / SAC_META).read_text())
         return cls(SAC.load(folder / SAC_FILE, device="cpu"), meta)
 
-    def reset(self, env) -> None:
-        trained, here = self.meta["env"], env_constants(env)
+    def reset(self, spec) -> None:
+        trained, here = self.meta["env"], env_constants(spec)
         differ = [k for k in ENV_KEYS if trained[k] != here[k]]
         if differ:
             raise InputError(f"the SAC policy was trained with {', '.join(f'{k}={trained[k]!r}' for k in differ)}; "
@@ -213,10 +212,12 @@ class SACPolicy(Policy):
         return float(np.clip(action[0], -1.0, 1.0)) * self.dv_max_V
 
 
-def env_constants(env) -> dict:
-    """The env constants a trained policy depends on (:data:`ENV_KEYS`)."""
-    return {"target_m": env.target_m, "dv_max_V": env.dv_max_V, "v_max_V": env.v_max_V, "dt_s": env.plant.dt,
-            "observation": list(env.OBSERVATION)}
+def env_constants(spec) -> dict:
+    """The task constants a trained policy depends on (:data:`ENV_KEYS`), from a
+    :class:`~deapull.control.env.TaskSpec` (or an env: its ``task_spec()``)."""
+    spec = spec.task_spec() if hasattr(spec, "task_spec") else spec
+    return {"target_m": spec.target_m, "dv_max_V": spec.dv_max_V, "v_max_V": spec.v_max_V, "dt_s": spec.dt_s,
+            "observation": list(spec.observation)}
 
 
 def train_sac(env, out_dir: str | Path, timesteps: int, seed: int = 0, learning_starts: int = 1000,

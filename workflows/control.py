@@ -284,7 +284,7 @@ def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=No
     from deapull.control.env import policy_view
     from deapull.control.plants import PlantFailed
     obs, info = env.reset(seed=seed)
-    policy.reset(env)
+    policy.reset(env.task_spec())
     xs, Vs, inferred = [info["x_m"]], [env.V], {}
     act_s = plant_s = 0.0
     reached, status, inside = None, "ok", []

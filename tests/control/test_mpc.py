@@ -284,7 +284,7 @@ def test_paper_cost_is_the_papers_up_to_scale_and_constant():
 def episode(policy, env, seed=0):
     from deapull.control.env import policy_view
     obs, info = env.reset(seed=seed)
-    policy.reset(env)
+    policy.reset(env.task_spec())
     actions = []
     while True:
         actions.append(policy.act(obs, policy_view(info)))

@@ -33,15 +33,15 @@ def test_pd_units_and_sign_convention():
     env = CoinPushEnv(RatchetPlant())
     pd = PDPolicy()
     obs, info = env.reset(seed=0)
-    pd.reset(env)
+    pd.reset(env.task_spec())
     assert pd.act(obs, policy_view(info)) == pytest.approx(0.5)           # 1 mm short: +0.5 V
     moved = np.array([-0.01, 0.0], dtype=np.float32)                      # 0.01 mm toward −x
     assert pd.act(moved, {}) == pytest.approx(-0.5 * -0.99 + 5 * 0.01, rel=1e-5)
     at_target = np.array([-1.0, 0.5], dtype=np.float32)
-    pd.reset(env)
+    pd.reset(env.task_spec())
     assert pd.act(at_target, {}) == pytest.approx(0.0, abs=1e-6)
     past = np.array([-1.2, 0.5], dtype=np.float32)                        # overshot: lower the voltage
-    pd.reset(env)
+    pd.reset(env.task_spec())
     assert pd.act(past, {}) == pytest.approx(-0.1, rel=1e-5)
 
 
@@ -101,3 +101,45 @@ def test_sac_trains_saves_loads_and_acts_the_same(tmp_path):
         loaded.reset(CoinPushEnv(RatchetPlant(), dv_max_V=2.0))
     with pytest.raises(InputError, match="sac.zip"):
         SACPolicy.load(tmp_path)
+
+
+def _reaches(start, targets, depth: int = 6) -> bool:
+    """Whether any object of ``targets`` can be reached from ``start`` by following references
+    (attributes, containers, bound methods' owners) at most ``depth`` deep."""
+    import gc
+    seen, frontier = set(), [start]
+    for _ in range(depth):
+        nxt = []
+        for obj in frontier:
+            if any(obj is t for t in targets):
+                return True
+            if id(obj) in seen or isinstance(obj, (type, type(gc))):
+                continue
+            seen.add(id(obj))
+            nxt.extend(gc.get_referents(obj))
+        frontier = nxt
+    return any(obj is t for obj in frontier for t in targets)
+
+
+def test_a_policy_sees_observations_only_never_the_env_or_the_plant():
+    """Whatever a policy is handed in an episode (reset's argument, act's observation and info)
+    leads to neither the env nor the plant, so no policy can read the true state."""
+    handed = []
+
+    class Spy(Policy):
+        name = "spy"
+
+        def reset(self, spec):
+            handed.append(spec)
+
+        def act(self, obs, info):
+            handed.extend([obs, info])
+            return 1.0
+
+    plant = RatchetPlant()
+    env = CoinPushEnv(plant, max_steps=50, terminate_on_success=False)
+    run_episode(env, Spy(), seed=0, step_limit=5, hold_steps=0)
+    assert len(handed) >= 3
+    for thing in handed:
+        assert not _reaches(thing, (env, plant)), type(thing)
+    assert _reaches({"a": [env]}, (env,))      # the search does find a reference when there is one
