@@ -180,3 +180,17 @@ class FEMPlant:
         self.last_record = record
         self.t, self.V = record.t, record.V
         return np.array([record.x, record.u], dtype=np.float64)
+
+
+def ramp_reach_m(plant, dv_max_V: float, v_max_V: float, steps: int) -> float:
+    """The furthest position (m, most negative x) the plant's coin reaches under the fastest push
+    a policy can give: V rising by ``dv_max_V`` per step to ``v_max_V`` and held, for ``steps``
+    steps from rest. Voltage moves the coin toward −x only while it rises, so no policy under
+    the same |ΔV| limit gets further in as many steps. Resets the plant before and after."""
+    plant.reset()
+    x_min, V = 0.0, 0.0
+    for _ in range(int(steps)):
+        V = min(V + dv_max_V, v_max_V)
+        x_min = min(x_min, float(plant.step(V)[0]))
+    plant.reset()
+    return x_min

@@ -22,7 +22,8 @@ def cmd_control(args) -> int:
         out=Path(args.out), episodes=args.episodes, seed=args.seed, dv_max_V=args.dv_max,
         max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm, data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
-        mpc_oracle=args.mpc_oracle, phi_prior=args.phi_prior, sac_dir=args.sac_dir, sac_steps=args.sac_steps,
+        mpc_oracle=args.mpc_oracle, phi_prior=args.phi_prior, infer_optimizer=args.infer_optimizer,
+        sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress)
     import torch  # lazy: as above
     torch.set_num_threads(args.threads)
@@ -67,6 +68,9 @@ def register(sub) -> None:
                    help="the MPC's online inference: none (maximum likelihood, the paper's Algorithm 2; default) "
                         "or coins (MAP with a log-normal prior over the design card's coin family, a factor 2 "
                         "wide: control.inference.COIN_PRIOR)")
+    p.add_argument("--infer-optimizer", default="lm", choices=("lm", "adam"),
+                   help="the online inference's optimiser: lm (Levenberg-Marquardt, default) or adam (the paper's "
+                        "Adam, Algorithm 2)")
     p.add_argument("--sac-dir", default="out/models/sac{n}",
                    help="trained SAC policy folder; trained there on the surrogate plant when absent "
                         "(default out/models/sac{n})")

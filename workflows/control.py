@@ -24,6 +24,7 @@ Outputs in ``--out`` (every file written atomically):
 from __future__ import annotations
 
 import importlib.util
+import logging
 import math
 import re
 import time
@@ -38,6 +39,10 @@ from deapull import scene as scenes
 from deapull.errors import InputError
 from deapull.io import atomic_write, markdown_table, write_csv, write_json, write_text
 from deapull.paper import CONTROL
+
+log = logging.getLogger(__name__)
+#: steps at V_max after the fastest ramp in the reach check (the coin coasts to rest well within)
+REACH_HOLD_STEPS = 1000
 
 POLICIES = ("mpc", "sac", "pd", "heur", "mpc+kf", "pd+kf")
 PLANT_KINDS = ("surrogate", "fem")
@@ -98,6 +103,7 @@ class ControlConfig:
     mpc_cost: str = "scaled"
     mpc_oracle: bool = False
     phi_prior: str = "none"
+    infer_optimizer: str = "lm"
     sac_dir: str = "out/models/sac{n}"
     sac_steps: int = 30000
     scene: str = "coin_pull"
@@ -257,7 +263,7 @@ def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
     from deapull.control.inference import COIN_PRIOR, InferenceConfig
     prior = {"none": None, "coins": COIN_PRIOR}[config.phi_prior]
     settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle, filter=filter,
-                         inference=InferenceConfig(optimizer="lm", prior=prior))
+                         inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
     return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
 
 
@@ -348,6 +354,7 @@ def run(config: ControlConfig) -> list[Episode]:
     with tqdm(total=total, desc="control episodes", unit="episode", disable=not config.progress) as bar:
         for spec in config.plants:
             plant = build_plant(config, spec)
+            check_reach(config, spec, plant)
             for name in config.policies:
                 policy = build_policy(config, name, spec, plant)
                 for noise in config.noises:
@@ -360,6 +367,23 @@ def run(config: ControlConfig) -> list[Episode]:
                         bar.update(1)
     write_outputs(config, episodes)
     return episodes
+
+
+def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
+    """Refuse a target the plant cannot reach under the |ΔV| limit (:func:`ramp_reach_m`), never
+    move it. A surrogate plant is checked (one ramp rollout); an FEM plant is not (a full FEM
+    ramp: its reach is its dataset's travel, docs/control.md)."""
+    from deapull.control.env import V_MAX_V         # lazy: the control stage loads torch and gymnasium
+    from deapull.control.plants import ramp_reach_m  # lazy: as above
+    if spec.kind != "surrogate":
+        log.info("%s: the target's reach is not checked on an FEM plant", spec.name)
+        return
+    steps = math.ceil(V_MAX_V / config.dv_max_V) + REACH_HOLD_STEPS
+    reach = ramp_reach_m(plant, config.dv_max_V, V_MAX_V, steps)
+    if reach > config.target_m + config.tolerance_m:
+        raise InputError(f"--target-mm {1e3 * config.target_m:g}: {spec.name} cannot reach it; its coin gets to "
+                         f"{1e3 * reach:.4f} mm at most under the fastest push (+{config.dv_max_V:g} V per step to "
+                         f"{V_MAX_V:g} V, then held {REACH_HOLD_STEPS} steps); choose a target within reach")
 
 
 def write_outputs(config: ControlConfig, episodes: list[Episode]) -> None:

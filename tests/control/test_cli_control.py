@@ -4,6 +4,7 @@ a short episode on the FEM plant of a tiny mesh."""
 from __future__ import annotations
 
 import csv
+import json
 
 import pytest
 
@@ -119,3 +120,29 @@ def test_control_on_the_fem_plant_of_a_tiny_mesh(tmp_path):
     assert row["plant"] == "fem:C1" and row["status"] == "ok" and row["steps_run"] == "5"
     assert float(row["final_V_V"]) == pytest.approx(2.5) and float(row["true_mass_kg"]) > 1e-3
     assert (out / "fem" / "C1" / "mesh").is_dir()
+
+
+def test_a_target_beyond_the_plants_reach_exits_2_and_is_never_moved(base, tmp_path, capsys):
+    """The fixture's surrogate C1 slides ~0.5 mm under the full ramp: -0.4 mm runs, -5 mm is
+    refused before any episode with the reach in the message."""
+    assert main([*base, "--policy", "heur", "--episodes", "1", "--max-steps", "5", "--hold", "0",
+                 "--target-mm", "-0.4"]) == 0
+    capsys.readouterr()
+    assert main([*base, "--policy", "heur", "--target-mm", "-5", "--out", str(tmp_path / "far")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--target-mm -5: surrogate:C1 cannot reach it" in err, err
+    reach_mm = float(err.split("gets to ")[1].split(" mm")[0])
+    assert -1.0 < reach_mm < -0.4
+    assert not (tmp_path / "far" / "control.csv").exists()
+
+
+def test_the_papers_adam_and_lm_are_both_reachable_from_the_cli(base, tmp_path, fs1_dir, capsys):
+    for optimizer in ("adam", "lm"):
+        out = tmp_path / optimizer
+        argv = [*base, "--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3",
+                "--hold", "0", "--target-mm", "-0.4", "--infer-optimizer", optimizer, "--out", str(out)]
+        assert main(argv) == 0
+        assert json.loads((out / "run.json").read_text())["config"]["infer_optimizer"] == optimizer
+    with pytest.raises(SystemExit) as bad:                 # argparse: exit 2 naming the choices
+        main([*base, "--policy", "mpc", "--infer-optimizer", "sgd"])
+    assert bad.value.code == 2 and "--infer-optimizer" in capsys.readouterr().err
