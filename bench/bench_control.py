@@ -146,9 +146,10 @@ def main(argv=None) -> int:
     states, reach_m = start_states(dyn, args.solves, -args.target_mm * 1e-3)
     target_m = -args.target_mm * 1e-3
     if reach_m > target_m:
-        print(f"note: the model's coin reaches only {reach_m * 1e3:.3f} mm at {V_MAX_V:.0f} V; target set to "
-              f"{reach_m * 1e3:.3f} mm")
-        target_m = reach_m
+        print(f"--target-mm {args.target_mm:g}: unreachable: the model's coin (C1's) gets to {reach_m * 1e3:.3f} mm "
+              f"at most at {V_MAX_V:.0f} V; pass --target-mm {abs(reach_m) * 1e3 * 0.95:.3f} (or less) to time the "
+              f"solvers on a target within reach (make bench-control BENCH_TARGET_MM=...)", file=sys.stderr)
+        return 2
     full = coin_cost(target_m)
     cost = mpc.QuadCost(full.C, full.c)             # no final term, as mpc.pytorch
     T, iters = args.horizon, args.iterations
