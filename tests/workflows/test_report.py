@@ -403,6 +403,33 @@ def test_browser_check_catches_broken_images_errors_and_empty_tables(tmp_path):
     assert any("boom" in m for m in result.console_errors)
 
 
+@needs_browser
+@pytest.mark.parametrize("width", [390, 1920])
+def test_the_standalone_page_renders_alone_at_phone_and_desktop_width(tmp_path, width):
+    """The portable file, moved into an empty folder, shows every image; at 390 px (a phone) and
+    at 1,920 px nothing but the tables' own boxes scrolls sideways."""
+    data = _sweep(tmp_path, report.SETUPS)
+    inputs = _inputs(tmp_path, data)
+    _fake_studies(inputs)
+    inputs.fields.parent.mkdir(parents=True)
+    _write_fields(inputs.fields.parent, np.linspace(0, 1, 5))
+    summary = report.build(tmp_path / "report", inputs, frames=3, progress=False)
+    alone = tmp_path / "elsewhere" / "page.html"
+    alone.parent.mkdir()
+    alone.write_text(Path(summary["standalone"]).read_text())
+    result = check_page(alone, width_px=width)
+    assert result.ok, result.summary()
+    assert result.images >= 8 and not result.broken_images and result.overflow_px == 0
+
+
+@needs_browser
+def test_browser_check_catches_a_page_wider_than_the_phone(tmp_path):
+    page = tmp_path / "index.html"
+    page.write_text('<!DOCTYPE html><html><body><div style="width:900px">wide</div></body></html>')
+    result = check_page(page, width_px=390)
+    assert not result.ok and result.overflow_px >= 500
+
+
 def test_check_without_browser_says_so(tmp_path):
     page = tmp_path / "index.html"
     page.write_text("<html></html>")
@@ -461,3 +488,31 @@ def test_a_diverged_model_is_never_better_or_faster_and_the_counts_come_from_the
     assert f"**{n['reproduced']} reproduced · {n['not reproduced']} not reproduced · {n['beyond the paper']} beyond " \
            f"the paper**" in md
     assert n["not reproduced"] >= 6
+
+
+def test_the_standalone_page_carries_its_images_and_tables_inline(tmp_path):
+    """report_standalone.html opens with no file beside it: every image is a data URI of the very
+    PNG the page shows, every table offers its CSV (inline there, a file under tables/ for
+    index.html) with the table's rows."""
+    import base64
+    import csv as _csv
+    data = _sweep(tmp_path, report.SETUPS)
+    inputs = _inputs(tmp_path, data)
+    _fake_studies(inputs)
+    out = tmp_path / "report"
+    summary = report.build(out, inputs, progress=False)
+    alone = Path(summary["standalone"]).read_text()
+    index = (out / "index.html").read_text()
+    srcs = re.findall(r'<img src="([^"]+)"', alone)
+    assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
+    for rel, inline in zip(re.findall(r'<img src="([^"]+)"', index), srcs):
+        assert base64.b64decode(inline.split(",", 1)[1]) == (out / rel).read_bytes()
+    hrefs = re.findall(r'href="([^"#][^"]*)"', alone)
+    assert all(h.startswith("data:") for h in hrefs), [h[:40] for h in hrefs if not h.startswith("data:")]
+    n_tables = index.count("<table")
+    files = re.findall(r'<a href="(tables/[^"]+\.csv)"', index)
+    assert len(files) == n_tables == alone.count("data:text/csv;base64,")
+    first = re.search(r'<table[^>]*>.*?</table>', index, re.S).group(0)
+    with open(out / files[0], newline="") as f:
+        rows = list(_csv.reader(f))
+    assert len(rows) - 1 == first.count("<tr") - 1          # header row + one per body row

@@ -14,7 +14,7 @@ from deapull.io import write_json, write_text
 from deapull.workflows.report import sections_control, sections_fem, sections_page, sections_surrogates
 from deapull.workflows.report.document import Report
 from deapull.workflows.report.inputs import STEPS, Inputs
-from deapull.workflows.report.render import render_html, render_markdown
+from deapull.workflows.report.render import render_html, render_markdown, table_csv, table_files
 
 log = logging.getLogger(__name__)
 
@@ -58,11 +58,21 @@ def build(out, inputs: Inputs, frames: int = 30, progress: bool = True) -> dict:
     rep.sections.insert(0, FIRST(rep))
     rep.sections.append(LAST(rep))
     _drop_stale_images(rep)
+    tables = out / "tables"
+    if tables.is_dir():
+        shutil.rmtree(tables)
+    tables.mkdir()
+    names = table_files(rep)
+    for s in rep.sections:
+        for block in s.blocks:
+            if block[0] == "table":
+                write_text(tables / names[id(block[1])], table_csv(block[1]))
     index = write_text(out / "index.html", render_html(rep, TITLE, LEAD))
+    standalone = write_text(out / "report_standalone.html", render_html(rep, TITLE, LEAD, standalone=True))
     md = write_text(out / "report.md", render_markdown(rep, TITLE, LEAD))
     found = {step for s in rep.sections for _, step in s.missing}
     missing = [s.name for s in STEPS if s.name in found]          # in pipeline order
-    summary = {"index": str(index), "markdown": str(md), "missing": missing,
+    summary = {"index": str(index), "standalone": str(standalone), "markdown": str(md), "missing": missing,
                "claims": [vars(c) for c in rep.claims], "images": sorted(p.name for p in rep.img.iterdir()),
                "sources": list(rep.sources.values()), "git_commit": provenance.git_commit()}
     write_json(out / "report.json", summary, indent=1)

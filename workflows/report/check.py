@@ -36,17 +36,22 @@ class PageCheck:
     broken_images: list = field(default_factory=list)
     tables: int = 0
     empty_tables: list = field(default_factory=list)
+    width_px: int = 0
+    overflow_px: int = 0        # how far the page scrolls sideways outside its scroll boxes
 
     @property
     def ok(self) -> bool:
-        return not (self.console_errors or self.failed_requests or self.broken_images or self.empty_tables)
+        return not (self.console_errors or self.failed_requests or self.broken_images or self.empty_tables
+                    or self.overflow_px > 0)
 
     def summary(self) -> str:
         head = (f"browser check ({self.browser}): {self.images} images, {self.tables} tables, "
                 f"{len(self.console_errors)} console errors")
         problems = ([f"console: {m}" for m in self.console_errors] + [f"request failed: {r}" for r in
                     self.failed_requests] + [f"image not loaded: {s}" for s in self.broken_images]
-                    + [f"table without rows: {t}" for t in self.empty_tables])
+                    + [f"table without rows: {t}" for t in self.empty_tables]
+                    + ([f"the page is {self.overflow_px} px wider than a {self.width_px} px window"]
+                       if self.overflow_px > 0 else []))
         return head + (": ok" if self.ok else "\n  " + "\n  ".join(problems))
 
 
@@ -66,11 +71,14 @@ _PROBE = """() => ({
   tables: [...document.querySelectorAll('table')].map((t, k) => ({
       name: (t.caption ? t.caption.textContent : '') || (t.closest('section') || {}).id || ('table ' + k),
       rows: t.tBodies.length ? t.tBodies[0].rows.length : 0})),
+  overflow: document.documentElement.scrollWidth - window.innerWidth,
 })"""
 
 
-def check_page(index, browser: str | None = None, timeout_s: float = 60.0) -> PageCheck:
-    """Open ``index`` (an HTML file) in headless chromium and check it.
+def check_page(index, browser: str | None = None, timeout_s: float = 60.0, width_px: int = 1280) -> PageCheck:
+    """Open ``index`` (an HTML file) in headless chromium, in a window ``width_px`` wide, and check it:
+    console errors, failed requests, broken images, empty tables, and sideways overflow of the page
+    itself (wide tables scroll inside their own box).
 
     Raises
     ------
@@ -87,12 +95,13 @@ def check_page(index, browser: str | None = None, timeout_s: float = 60.0) -> Pa
         raise BrowserUnavailable("no browser to check the page: apt-get install chromium and pip install "
                                  "playwright (never `playwright install`)")
     from playwright.sync_api import sync_playwright   # here: playwright is optional (the browser extra)
-    result = PageCheck(browser=exe)
+    result = PageCheck(browser=exe, width_px=int(width_px))
     with tempfile.TemporaryDirectory(prefix="deapull-chromium-") as profile, sync_playwright() as pw:
         context = pw.chromium.launch_persistent_context(profile, executable_path=exe, headless=True,
                                                         args=list(FLAGS), timeout=timeout_s * 1e3)
         try:
             page = context.new_page()
+            page.set_viewport_size({"width": int(width_px), "height": 900})
             page.on("console", lambda m: result.console_errors.append(m.text) if m.type == "error" else None)
             page.on("pageerror", lambda e: result.console_errors.append(str(e)))
             page.on("requestfailed", lambda r: result.failed_requests.append(f"{r.url} ({r.failure})"))
@@ -104,4 +113,5 @@ def check_page(index, browser: str | None = None, timeout_s: float = 60.0) -> Pa
     result.broken_images = [i["src"] for i in probe["images"] if not i["ok"]]
     result.tables = len(probe["tables"])
     result.empty_tables = [t["name"] for t in probe["tables"] if t["rows"] == 0]
+    result.overflow_px = max(int(probe["overflow"]), 0)
     return result

@@ -1,8 +1,11 @@
-"""The page rendered: one self-contained HTML file (inline CSS, no script) and the same
-content as Markdown."""
+"""The page rendered: HTML (inline CSS, no script) beside its images and table files, the same
+page as one portable file (images and tables inline as data URIs), and Markdown."""
 from __future__ import annotations
 
+import base64
+import csv
 import html
+import io
 import re
 from pathlib import Path
 
@@ -45,10 +48,41 @@ figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}figcaption{f
 .missing{background:#fff4f0;border-left:4px solid #d9534f;padding:.5em .8em;margin:.8em 0}
 code{background:#f4f4f6;padding:0 .25em;border-radius:3px}nav ol{columns:2}
 table.wrap td,table.wrap th{white-space:normal;text-align:left}
+.data{font-size:.8em;margin:-.9em 0 1.2em}
+@media (max-width:600px){body{padding:0 .6em 2em}nav ol{columns:1}table{font-size:.8em}}
 """
 
+MIME = {".png": "image/png", ".gif": "image/gif", ".svg": "image/svg+xml", ".jpg": "image/jpeg"}
 
-def render_html(report: Report, title: str, lead: list[str]) -> str:
+
+def table_csv(table) -> str:
+    """A table's headers and rows as CSV text (the cells as shown)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow([str(h) for h in table.headers])
+    writer.writerows([[str(c) for c in row] for row in table.rows])
+    return buf.getvalue()
+
+
+def table_files(report: Report) -> dict:
+    """{id(table): file name under ``tables/``} for every table of the page: section id and position."""
+    names = {}
+    for s in report.sections:
+        tables = [b[1] for b in s.blocks if b[0] == "table"]
+        for k, t in enumerate(tables, 1):
+            names[id(t)] = f"{s.id}-{k}.csv"
+    return names
+
+
+def _data_uri(data: bytes, mime: str) -> str:
+    return f"data:{mime};base64,{base64.b64encode(data).decode()}"
+
+
+def render_html(report: Report, title: str, lead: list[str], standalone: bool = False) -> str:
+    """The page as HTML. ``standalone``: one portable file, every image and table file inline as a
+    data URI (opens from anywhere, with no file beside it); otherwise they are files beside it
+    (``img/``, ``tables/``)."""
+    files = table_files(report)
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              '<meta name="viewport" content="width=device-width, initial-scale=1">',
              f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
@@ -65,7 +99,11 @@ def render_html(report: Report, title: str, lead: list[str]) -> str:
             elif kind == "ul":
                 parts.append("<ul>" + "".join(f"<li>{inline_html(i)}</li>" for i in block[1]) + "</ul>")
             elif kind == "img":
-                src, alt = html.escape(block[1], quote=True), html.escape(block[2], quote=True)
+                src = block[1]
+                if standalone:
+                    path = report.out / src
+                    src = _data_uri(path.read_bytes(), MIME.get(path.suffix.lower(), "application/octet-stream"))
+                src, alt = html.escape(src, quote=True), html.escape(block[2], quote=True)
                 parts.append(f'<figure><img src="{src}" alt="{alt}">'
                              f"<figcaption>{inline_html(block[2])}</figcaption></figure>")
             elif kind == "missing":
@@ -84,6 +122,10 @@ def render_html(report: Report, title: str, lead: list[str]) -> str:
                     rows.append(f"<tr{attr}>" + "".join(f"<td>{inline_html(str(c))}</td>" for c in row) + "</tr>")
                 cls = ' class="wrap"' if t.wrap else ""
                 parts.append(f"<table{cls}>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>")
+                name = files[id(t)]
+                href = _data_uri(table_csv(t).encode(), "text/csv") if standalone else f"tables/{name}"
+                parts.append(f'<p class="data"><a href="{html.escape(href, quote=True)}" download="{name}">'
+                             f"CSV of this table</a></p>")
         if s.sources:
             links = ", ".join(f'<a href="#{report.sources[Path(p).resolve()]["anchor"]}"><code>{html.escape(str(p))}'
                               "</code></a>" for p in s.sources)
