@@ -376,14 +376,19 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
 needs_browser = pytest.mark.skipif(find_browser() is None, reason="no chromium + playwright installed")
 
 
-@needs_browser
-def test_page_loads_cleanly_in_chromium(tmp_path):
+def _full_report(tmp_path) -> dict:
+    """The page built from every study's outputs, field output included (3 animation frames)."""
     data = _sweep(tmp_path, report.SETUPS)
     inputs = _inputs(tmp_path, data)
     _fake_studies(inputs)
     inputs.fields.parent.mkdir(parents=True)
     _write_fields(inputs.fields.parent, np.linspace(0, 1, 5))
-    summary = report.build(tmp_path / "report", inputs, frames=3, progress=False)
+    return report.build(tmp_path / "report", inputs, frames=3, progress=False)
+
+
+@needs_browser
+def test_page_loads_cleanly_in_chromium(tmp_path):
+    summary = _full_report(tmp_path)
     assert summary["missing"] == []
     result = check_page(summary["index"])
     assert result.ok, result.summary()
@@ -408,12 +413,7 @@ def test_browser_check_catches_broken_images_errors_and_empty_tables(tmp_path):
 def test_the_standalone_page_renders_alone_at_phone_and_desktop_width(tmp_path, width):
     """The portable file, moved into an empty folder, shows every image; at 390 px (a phone) and
     at 1,920 px nothing but the tables' own boxes scrolls sideways."""
-    data = _sweep(tmp_path, report.SETUPS)
-    inputs = _inputs(tmp_path, data)
-    _fake_studies(inputs)
-    inputs.fields.parent.mkdir(parents=True)
-    _write_fields(inputs.fields.parent, np.linspace(0, 1, 5))
-    summary = report.build(tmp_path / "report", inputs, frames=3, progress=False)
+    summary = _full_report(tmp_path)
     alone = tmp_path / "elsewhere" / "page.html"
     alone.parent.mkdir()
     alone.write_text(Path(summary["standalone"]).read_text())
