@@ -49,6 +49,7 @@ figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}figcaption{f
 code{background:#f4f4f6;padding:0 .25em;border-radius:3px}nav ol{columns:2}
 table.wrap td,table.wrap th{white-space:normal;text-align:left}
 .data{font-size:.8em;margin:-.9em 0 1.2em}
+p,li,figcaption,.missing{overflow-wrap:anywhere}
 @media (max-width:600px){body{padding:0 .6em 2em}nav ol{columns:1}table{font-size:.8em}}
 """
 
