@@ -1,5 +1,8 @@
 """Online inference of the coin's φ during control (paper Algorithm 2, lines 6–11).
 
+(Longer than ~500 lines on purpose: the replay buffer, the predictor, both optimisers and the
+identifiability report work on one estimate; a split is planned with the capability registry.)
+
 Every control step adds the observed transition to a replay buffer; every update draws a
 batch of 256 transitions and takes one Adam step on log φ to minimise the one-step
 prediction error of the model f_a (eq. 9), the network θ fixed. The MPC reads the current

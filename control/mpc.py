@@ -1,5 +1,8 @@
 """A batched, box-constrained iLQR (Gauss–Newton DDP) in torch float64.
 
+(Longer than ~500 lines on purpose: one algorithm, its costs, linearisation, backward and
+forward passes and the envelope-theorem gradients, read and tested together.)
+
 The problem, for each of B rows at once::
 
     min_u  J = Σ_{t=0}^{T-1} ℓ_t(x_t, u_t) + ℓ_T(x_T)

@@ -1,5 +1,8 @@
 """Scene files: TOML → validated, frozen dataclasses.
 
+(Longer than ~500 lines on purpose: the sections, their fields' ranges and docs, and the
+validation that reads those ranges are one schema; it is also the README's key table.)
+
 A scene says what the simulation contains. Every quantity is SI with its unit in
 the key's name (``coin.density_kg_m3``, ``load.voltage_max_V``). Sections that a
 scene does not have (``coin``, ``stop``, ``table``) are ``None`` and the solver assembles

@@ -1,5 +1,8 @@
 """Time stepping of one scene, with the coin coupled in every step.
 
+(Longer than ~500 lines on purpose: placement, the coupled solve, cut-backs and the run loop
+share the one Stepper's state; split, each part would reach into the others.)
+
 The caller owns the voltage and the step size::
 
     stepper = Stepper(problem, mass_kg)      # or Simulation.from_scene(...).stepper()
