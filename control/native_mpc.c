@@ -21,6 +21,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "coin_step.h"   /* reg, coin_root: the coin's step (surrogate/coin_step.h) */
+
 typedef struct {
     int K;
     const double *knots, *slope, *intercept;
@@ -54,56 +56,6 @@ static void material(const Model *M, double V, double *X, double *dX, double *Fy
     *dX = M->sx * s0 / M->scale;
     *Fy = M->fym + M->fys * o1;
     *dFy = M->fys * s1 / M->scale;
-}
-
-static inline double reg(double v, double eps) { return v / sqrt(v * v + eps * eps); }
-
-/* (y² + ε²)^1.5 as q√q: within an ulp of torch's pow and several times faster */
-static inline double slope_den(double y, double eps)
-{
-    double q = y * y + eps * eps;
-    return q * sqrt(q);
-}
-
-/* The coin's velocity v' at the end of a step (tip_coin_step): the root of
- *   r(v) = c (v − u) − cap_t reg(w − v) + sign cap_b
- * by Newton safeguarded with bisection in [lo, hi], then one more Newton correction.
- * Returns the corrected v'; *root is v' before the correction and *slope r'(root). */
-typedef struct { double v, root, slope, sign; int stuck; } CoinRoot;
-
-static CoinRoot coin_root(double c, double u, double w, double cap_t, double cap_b, double eps, int iterations)
-{
-    CoinRoot R;
-    double tip_rest = cap_t * reg(w, eps);
-    double ground = tip_rest + c * u;
-    R.stuck = fabs(ground) <= cap_b;
-    double sign = ground > 0.0 ? 1.0 : -1.0;
-    double reach = (cap_t + cap_b) / c;
-    double lo = (sign > 0.0 || R.stuck) ? 0.0 : fmin(u - reach, 0.0);
-    double hi = (sign < 0.0 || R.stuck) ? 0.0 : fmax(u + reach, 0.0);
-    double ratio = sign * cap_b / fmax(cap_t, 1e-300);
-    ratio = fmin(fmax(ratio, -0.999999), 0.999999);
-    double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi);
-    double change = hi - lo;
-#define RESIDUAL(v_) (c * ((v_) - u) - cap_t * reg(w - (v_), eps) + sign * cap_b)
-#define SLOPE(v_) (c + cap_t * eps * eps / slope_den(w - (v_), eps))
-    for (int it = 0; it < iterations; it++) {
-        double r = RESIDUAL(v);
-        if (r < 0.0) lo = v; else hi = v;
-        double s = r / SLOPE(v);
-        int bisect = (v - s < lo) || (v - s > hi) || (2.0 * fabs(s) > fabs(change));
-        double previous = v;
-        v = bisect ? 0.5 * (lo + hi) : v - s;
-        change = v - previous;
-        if (fabs(change) <= 1e-13 * (fabs(v) + eps)) break;
-    }
-    R.slope = SLOPE(v);
-    R.root = v;
-    R.v = v - RESIDUAL(v) / R.slope;
-    R.sign = sign;
-#undef RESIDUAL
-#undef SLOPE
-    return R;
 }
 
 /* One step ξ' = f(ξ, ν) in scaled units; A (3×3, row-major) = ∂ξ'/∂ξ and Bv (3) = ∂ξ'/∂ν

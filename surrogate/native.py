@@ -27,6 +27,8 @@ from deapull.io import atomic_write
 log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("native_rollout.c")
+#: the headers every kernel may include (this folder is on the include path): the coin's step
+HEADERS = (Path(__file__).with_name("coin_step.h"),)
 # -march=native with vectorisable reductions, but no -ffast-math (it would set
 # flush-to-zero for the whole process when the library is loaded)
 FLAGS = ("-O3", "-march=native", "-fno-math-errno", "-fassociative-math", "-fno-signed-zeros",
@@ -54,12 +56,13 @@ def compiled(source: Path, stem: str, fallback: str) -> ctypes.CDLL | None:
     if compiler is None or not source.is_file():
         log.warning("no C compiler (or %s missing): %s", source.name, fallback)
         return None
-    key = hashlib.sha256("\0".join([source.read_text(), compiler, *FLAGS, platform.machine(),
-                                    platform.node()]).encode()).hexdigest()[:16]
+    key = hashlib.sha256("\0".join([source.read_text(), *(h.read_text() for h in HEADERS), compiler, *FLAGS,
+                                    platform.machine(), platform.node()]).encode()).hexdigest()[:16]
     target = _cache_dir() / f"{stem}_{key}.so"
     if not target.is_file():
         try:
-            atomic_write(target, lambda tmp: subprocess.run([compiler, *FLAGS, str(source), "-o", tmp, "-lm"],
+            atomic_write(target, lambda tmp: subprocess.run([compiler, *FLAGS, f"-I{HEADERS[0].parent}", str(source),
+                                                             "-o", tmp, "-lm"],
                                                             check=True, capture_output=True, text=True, timeout=120))
         except (OSError, subprocess.CalledProcessError) as err:
             log.warning("compiling %s failed (%s): %s", source.name, getattr(err, "stderr", "") or err, fallback)

@@ -15,6 +15,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "coin_step.h"   /* reg, coin_root: the coin's step, shared with control/native_mpc.c */
+
 /* out = W h + b, four rows at a time so that four vectorised sums run side by side */
 static inline void dense_rows(int n_out, int n_in, const float *W, const float *b, const float *h, float *out,
                               int relu)
@@ -120,56 +122,28 @@ int deapull_rollout_physics(int n_layers, const int *sizes, const float *params,
     return 0;
 }
 
-/* The FEM's rate-regularised Coulomb factor s / sqrt(s^2 + eps^2). */
-static double regularised_slip(double v, double eps) { return v / sqrt(v * v + eps * eps); }
-
-/*
- * One backward-Euler step of the coin dragged by the tip (velocity w, regularised friction
- * cap_t) and held by the ground (exact Coulomb, cap_b); c = m_c / dt. Same arithmetic as
- * surrogate.models.tip_contact.tip_coin_step (bracketed Newton, then one Newton correction).
- */
+/* One step of the coin under the tip (coin_step.h's coin_root); *force is the tip's friction
+ * on the coin, and a coin the ground holds stays at rest. */
 static double tip_coin_step(double u, double w, double cap_t, double cap_b, double c, double eps, int iterations,
                             double *force)
 {
-    const double at_rest = cap_t * regularised_slip(w, eps);
-    const double reaction = at_rest + c * u;
-    if (fabs(reaction) <= cap_b) {
-        *force = at_rest;
+    const CoinRoot R = coin_root(c, u, w, cap_t, cap_b, eps, iterations);
+    if (R.stuck) {
+        *force = cap_t * reg(w, eps);
         return 0.0;
     }
-    const double sign = reaction > 0.0 ? 1.0 : -1.0, reach = (cap_t + cap_b) / c;
-    double lo = sign > 0.0 ? 0.0 : fmin(u - reach, 0.0);
-    double hi = sign > 0.0 ? fmax(u + reach, 0.0) : 0.0;
-    /* start where the tip's friction balances the ground's alone (inertia neglected) */
-    const double ratio = fmin(fmax(sign * cap_b / fmax(cap_t, 1e-300), -0.999999), 0.999999);
-    double v = fmin(fmax(w - eps * ratio / sqrt(1.0 - ratio * ratio), lo), hi), r, slope, d, change = hi - lo;
-    for (int k = 0; k <= iterations; k++) {
-        d = w - v;
-        r = c * (v - u) - cap_t * regularised_slip(d, eps) + sign * cap_b;
-        slope = c + cap_t * eps * eps / pow(d * d + eps * eps, 1.5);
-        if (k == iterations)
-            break;
-        if (r < 0.0)
-            lo = v;
-        else
-            hi = v;
-        /* bisect where Newton leaves the bracket or does not halve its last change */
-        const double step = r / slope;
-        double next = v - step;
-        if (next < lo || next > hi || 2.0 * fabs(step) > fabs(change))
-            next = 0.5 * (lo + hi);
-        change = next - v;
-        v = next;
-        if (fabs(change) <= 1e-13 * (fabs(v) + eps)) {
-            d = w - v;
-            r = c * (v - u) - cap_t * regularised_slip(d, eps) + sign * cap_b;
-            slope = c + cap_t * eps * eps / pow(d * d + eps * eps, 1.5);
-            break;
-        }
-    }
-    v -= r / slope;
-    *force = cap_t * regularised_slip(w - v, eps);
-    return v;
+    *force = cap_t * reg(w - R.v, eps);
+    return R.v;
+}
+
+/* N independent coin steps (the kernel itself, for tests): u, w, cap_t, cap_b, c (N each) ->
+ * u_next, force (N each). */
+int deapull_coin_steps(int n, const double *u, const double *w, const double *cap_t, const double *cap_b,
+                       const double *c, double eps, int iterations, double *u_next, double *force)
+{
+    for (int i = 0; i < n; i++)
+        u_next[i] = tip_coin_step(u[i], w[i], cap_t[i], cap_b[i], c[i], eps, iterations, &force[i]);
+    return 0;
 }
 
 /*
