@@ -51,8 +51,9 @@ class CoinDynamics:
     """
 
     def __init__(self, model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float):
-        if model.kind not in ("f-coulomb", "f"):
-            raise InputError(f"the MPC plans with a physics model (f-coulomb or f), not {model.kind!r}")
+        if not model.can("plan"):
+            raise InputError(f"the MPC plans with a model that can plan (capability 'plan'); {model.kind!r} "
+                             f"offers {sorted(model.capabilities) or 'nothing'}")
         self.model = copy.deepcopy(model).double().eval().requires_grad_(False)
         self.phi = phi
         self.dt, self.dv_max_V, self.v_max_V = float(dt), float(dv_max_V), float(v_max_V)
@@ -62,10 +63,7 @@ class CoinDynamics:
         V_next = torch.clamp(V + nu[:, 0] * self.dv_max_V, 0.0, self.v_max_V)
         s = torch.stack([x, u], -1)
         a = torch.stack([V_next, torch.full_like(V_next, self.dt)], -1)
-        if self.model.kind == "f-coulomb":
-            s_next, _ = self.model(s, a, V, self.phi)
-        else:
-            s_next, _ = self.model(s, a, self.phi)
+        s_next, _ = self.model.plan_step(s, a, V, self.phi)
         return torch.stack([s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S, V_next / V_UNIT_V], -1)
 
     def state(self, x_m: float, u_m_s: float, V_V: float) -> torch.Tensor:

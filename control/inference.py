@@ -39,14 +39,12 @@ from dataclasses import dataclass, field
 import torch
 
 from deapull.errors import InputError
-from deapull.surrogate.models.tip_contact import regularised_slip
 from deapull.surrogate.phi import FIELDS, Phi
 
 log = logging.getLogger(__name__)
 
 #: the paper's initial values (m_c = 0.001 g, μ_b = 0.2) and our stated priors
 INITIAL = {"mass_kg": 1e-6, "mu_b": 0.2, "mu_t": 0.5, "v_threshold_V": 150.0}
-KINDS = ("f-coulomb", "f")
 OPTIMIZERS = ("adam", "lm")
 #: the box each field is kept in while inferred (SI units): wide, only to stay finite
 BOUNDS = {"mass_kg": (1e-8, 1.0), "mu_b": (1e-3, 10.0), "mu_t": (1e-3, 10.0), "v_threshold_V": (1.0, 1e4)}
@@ -146,52 +144,30 @@ class InferenceConfig:
 
 
 class Predictor:
-    """x̂_{t+1}(φ) of buffered transitions for one model kind, θ fixed.
+    """x̂_{t+1}(φ) of buffered transitions for one model, θ fixed: what the model kind offers
+    under its ``infer`` capability.
 
     ``cache(x_prev, x, V, V_next, dt)`` evaluates what does not depend on φ once (float64
     columns); ``predict(columns, phi)`` gives the next positions, differentiable in φ.
     """
 
     def __init__(self, model):
-        if model.kind not in KINDS:
-            raise InputError(f"online inference needs a physics model ({', '.join(KINDS)}), not {model.kind!r}")
+        if not model.can("infer"):
+            raise InputError(f"online inference needs a model that can infer φ (capability 'infer'); "
+                             f"{model.kind!r} offers {sorted(model.capabilities) or 'nothing'}")
         self.model = model
-        self.kind = model.kind
 
-    @torch.no_grad()
     def cache(self, x_prev, x, V, V_next, dt) -> dict:
-        s = torch.stack([x, (x - x_prev) / dt], -1)
-        a = torch.stack([V_next, dt], -1)
-        columns = {"s": s, "a": a}
-        if self.kind == "f-coulomb":
-            stroke, fy = self.model.material_response(torch.stack([V, V_next], -1))
-            columns.update(stroke_prev=stroke[..., 0], stroke=stroke[..., 1], fy=fy[..., 1])
-        else:
-            columns["z"] = self.model.forces(s, a)
-        return {k: v.double() for k, v in columns.items()}
+        return self.model.inference_columns(x_prev, x, V, V_next, dt)
 
     def predict(self, c: dict, phi: Phi) -> torch.Tensor:
         """x̂_{t+1} of the cached rows ``c`` for the coin ``phi``."""
-        if self.kind == "f-coulomb":
-            s_next, _ = self.model.dynamics(c["s"], c["a"], c["stroke_prev"], c["stroke"], c["fy"], phi)
-        else:
-            s_next = self.model.dynamics(c["z"], c["s"], c["a"], phi)
-        return s_next[..., 0]
+        return self.model.predict_columns(c, phi)
 
     def stick_shortfall(self, c: dict, phi: Phi) -> torch.Tensor | None:
-        """How far (m/s) a row the model holds stuck is from slipping: (cap_b − |R|)⁺ Δt/m_c,
-        with R the ground's reaction needed to hold the coin and cap_b = μ_b N its Coulomb
-        limit (tip-contact model; None for the paper's law). 0 where the model lets it slip."""
-        if self.kind != "f-coulomb":
-            return None
-        m = self.model
-        phi = m._phi(phi, c["s"], torch.float64)
-        dt, fy = c["a"][..., 1], c["fy"]
-        w = (c["stroke"] - c["stroke_prev"]) / dt
-        cap_t = phi.mu_t * torch.clamp(fy, min=0.0)
-        cap_b = phi.mu_b * torch.clamp(phi.mass_kg * m.gravity_m_s2 + fy, min=0.0)
-        reaction = cap_t * regularised_slip(w, m.slip_rate_reg_m_s) + phi.mass_kg / dt * c["s"][..., 1]
-        return torch.relu(cap_b - reaction.abs()) * dt / phi.mass_kg
+        """How far (m/s) a row the model holds stuck is from slipping (None for a kind without
+        a stick state)."""
+        return self.model.stick_shortfall(c, phi)
 
 
 class ReplayBuffer:
@@ -249,11 +225,12 @@ class OnlineInference:
             raise InputError(f"no initial value for {', '.join(missing)} (InferenceConfig.initial)")
         self.predictor = Predictor(self.model)
         self.native = None
-        if config.engine != "torch" and model.kind == "f-coulomb":
+        if config.engine != "torch" and model.can("compiled_mpc"):
             from deapull.control import native
             self.native = native if native.available(model) else None
         if config.engine == "native" and self.native is None:
-            raise InputError(f"the native inference needs an f-coulomb model and a C compiler (model: {model.kind!r})")
+            raise InputError(f"the native inference needs a model with the 'compiled_mpc' capability and a C "
+                             f"compiler (model: {model.kind!r})")
         self.reset()
 
     def reset(self) -> None:

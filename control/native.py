@@ -64,7 +64,7 @@ def library() -> ctypes.CDLL | None:
 
 def available(model=None) -> bool:
     """True when the library compiles and ``model`` (if given) is one it runs (f-coulomb)."""
-    return (model is None or model.kind == "f-coulomb") and library() is not None
+    return (model is None or model.can("compiled_mpc")) and library() is not None
 
 
 def _p(a: np.ndarray):
@@ -84,7 +84,7 @@ class NativeCoinDynamics(CoinDynamics):
 
     def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
-        if self.model.kind != "f-coulomb" or library() is None:
+        if not self.model.can("compiled_mpc") or library() is None:
             raise RuntimeError("the native MPC runs f-coulomb models where a C compiler is available")
         pieces = self.model.material_pieces(0.0, self.v_max_V)
         self._knots = np.ascontiguousarray(pieces["knots"], dtype=np.float64)

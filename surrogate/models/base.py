@@ -128,6 +128,13 @@ def mlp_params(net: nn.Sequential) -> tuple[int, np.ndarray, np.ndarray]:
     return len(linears), sizes, np.ascontiguousarray(flat, dtype=np.float32)
 
 
+#: what a model kind may offer the control stage: ``plan`` (:meth:`Surrogate.plan_step`),
+#: ``infer`` (φ from buffered transitions: :meth:`Surrogate.inference_columns`, ``predict_columns``,
+#: ``stick_shortfall``) and ``compiled_mpc`` (control/native.py runs its step, Jacobians and iLQR in C:
+#: the tip-contact law with a piecewise-affine material network)
+CAPABILITIES = ("plan", "infer", "compiled_mpc")
+
+
 class Surrogate(nn.Module):
     """Base class: the training data's normalisation and input range, as buffers.
 
@@ -146,6 +153,35 @@ class Surrogate(nn.Module):
     #: the fields of φ the dynamics uses (:class:`~deapull.surrogate.phi.Phi`)
     phi_fields: tuple = ()
     window = 1
+    #: what the control stage may ask of this kind (:data:`CAPABILITIES`); control/ asks
+    #: :meth:`can`, never a kind's name
+    capabilities: frozenset = frozenset()
+
+    def can(self, capability: str) -> bool:
+        """Whether this kind offers ``capability`` (one of :data:`CAPABILITIES`)."""
+        if capability not in CAPABILITIES:
+            raise ValueError(f"unknown capability {capability!r}; known: {', '.join(CAPABILITIES)}")
+        return capability in self.capabilities
+
+    def plan_step(self, s, a, v_prev, phi: Phi):
+        """``plan``: one step (s', z) for a planner, from the state, the action and the voltage
+        ``v_prev`` before the step (a kind without memory of it ignores it)."""
+        raise NotImplementedError(f"model kind {self.kind!r} cannot plan (capabilities: {sorted(self.capabilities)})")
+
+    def inference_columns(self, x_prev, x, V, V_next, dt) -> dict:
+        """``infer``: what x̂_{t+1}(φ) of buffered transitions needs that does not depend on φ: a dict
+        of float64 columns with at least ``s`` = (x, u) and ``a`` = (V', Δt) (the inference reads
+        them), and whatever else the kind's :meth:`predict_columns` uses."""
+        raise NotImplementedError(f"model kind {self.kind!r} cannot infer φ")
+
+    def predict_columns(self, columns: dict, phi: Phi):
+        """``infer``: x̂_{t+1} of :meth:`inference_columns`' rows for the coin ``phi``."""
+        raise NotImplementedError(f"model kind {self.kind!r} cannot infer φ")
+
+    def stick_shortfall(self, columns: dict, phi: Phi):
+        """``infer``: how far (m/s) each row the model holds stuck is from slipping, or None when
+        the kind has no stick state."""
+        return None
 
     def __init__(self, norm: Normalisation, input_range: InputRange, hparams: dict):
         super().__init__()

@@ -258,6 +258,32 @@ class TipContactModel(TipFriction, Surrogate):
         s_next, z = self.dynamics(s, a, stroke[..., 0], stroke[..., 1], fy[..., 1], phi)
         return s_next.to(s.dtype), z.to(s.dtype)
 
+    capabilities = frozenset({"plan", "infer", "compiled_mpc"})
+
+    def plan_step(self, s, a, v_prev, phi: Phi):
+        return self(s, a, v_prev, phi)
+
+    def inference_columns(self, x_prev, x, V, V_next, dt) -> dict:
+        s, a = torch.stack([x, (x - x_prev) / dt], -1), torch.stack([V_next, dt], -1)
+        with torch.no_grad():
+            stroke, fy = self.material_response(torch.stack([V, V_next], -1))
+        columns = {"s": s, "a": a, "stroke_prev": stroke[..., 0], "stroke": stroke[..., 1], "fy": fy[..., 1]}
+        return {k: v.double() for k, v in columns.items()}
+
+    def predict_columns(self, c: dict, phi: Phi):
+        return self.dynamics(c["s"], c["a"], c["stroke_prev"], c["stroke"], c["fy"], phi)[0][..., 0]
+
+    def stick_shortfall(self, c: dict, phi: Phi):
+        """(cap_b − |R|)⁺ Δt/m_c, with R the ground's reaction needed to hold the coin and cap_b =
+        μ_b N its Coulomb limit; 0 where the model lets the coin slip."""
+        phi = self._phi(phi, c["s"], torch.float64)
+        dt, fy = c["a"][..., 1], c["fy"]
+        w = (c["stroke"] - c["stroke_prev"]) / dt
+        cap_t = phi.mu_t * torch.clamp(fy, min=0.0)
+        cap_b = phi.mu_b * torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
+        reaction = cap_t * regularised_slip(w, self.slip_rate_reg_m_s) + phi.mass_kg / dt * c["s"][..., 1]
+        return torch.relu(cap_b - reaction.abs()) * dt / phi.mass_kg
+
     def step(self, s, a, memory=None, phi: Phi | None = None):
         if memory is None:
             memory = self.init_memory(s, a)
