@@ -55,7 +55,7 @@ class SetupData:
     t, x, u, V, dt, Fx, Fy : numpy.ndarray
         Time (s), coin displacement (m), velocity (m/s), voltage (V), time since the
         previous step (s), DEA force on the coin along x (N) and pressing force (N).
-    coin_mass_kg, mu_b, gravity_m_s2 : float
+    mass_kg, mu_b, gravity_m_s2 : float
         The coin's mass, ground friction coefficient and gravity (φ and g of the dynamics).
     mu_t : float
         The tip–coin friction coefficient (NaN when the file does not say).
@@ -75,7 +75,7 @@ class SetupData:
     dt: np.ndarray
     Fx: np.ndarray
     Fy: np.ndarray
-    coin_mass_kg: float
+    mass_kg: float
     mu_b: float
     gravity_m_s2: float
     wall_time_s: float
@@ -167,7 +167,7 @@ def load_setup(path: str | Path) -> SetupData:
         raise DatasetError(f"{run.path}: variable 'dt': non-positive time step {dt[bad]:g} s at step {bad}")
     optional = {field: run.number(name, positive=False, default=float("nan"))
                 for name, field in OPTIONAL_ATTRS.items()}
-    return SetupData(name=run.path.stem, path=run.path, **columns, coin_mass_kg=run.number("coin_mass_kg"),
+    return SetupData(name=run.path.stem, path=run.path, **columns, mass_kg=run.number("coin_mass_kg"),
                      mu_b=run.number("coin_mu_b"), gravity_m_s2=run.number("gravity_m_s2"),
                      wall_time_s=float(run.attrs.get("wall_time_total_s", float("nan"))), **optional)
 

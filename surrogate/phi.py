@@ -60,7 +60,7 @@ class Phi:
     def of(cls, data, v_threshold_V: float = math.nan) -> "Phi":
         """The φ of a dataset's coin (a :class:`deapull.surrogate.data.SetupData`): m_c, μ_b
         and μ_t (NaN when the file has none) from its attributes, V^T as given."""
-        return cls(mass_kg=float(data.coin_mass_kg), mu_b=float(data.mu_b), mu_t=float(data.mu_t),
+        return cls(mass_kg=float(data.mass_kg), mu_b=float(data.mu_b), mu_t=float(data.mu_t),
                    v_threshold_V=float(v_threshold_V))
 
     @classmethod

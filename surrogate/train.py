@@ -129,7 +129,7 @@ def setup_record(data: SetupData, role: str, phi: Phi) -> dict:
     """A setup's identity and the φ it was trained with, as saved with a model (V^T: None
     where the kind does not use it)."""
     vt = phi.value("v_threshold_V")
-    return {"role": role, "file": str(data.path), "steps": data.n_steps, "coin_mass_kg": data.coin_mass_kg,
+    return {"role": role, "file": str(data.path), "steps": data.n_steps, "coin_mass_kg": data.mass_kg,
             "mu_b": data.mu_b, "mu_t": data.mu_t, "gravity_m_s2": data.gravity_m_s2, "travel_m": data.travel_m,
             "v_threshold_V": vt if math.isfinite(vt) else None}
 

@@ -24,7 +24,7 @@ def test_transitions_pair_each_state_with_the_next_increment(sweep):
     assert tr.a[k].tolist() == [data.V[k + 1], data.dt[k + 1]]
     assert tr.z[k].tolist() == [data.Fx[k + 1], data.Fy[k + 1]]
     assert tr.s_next[k].tolist() == [data.x[k + 1], data.u[k + 1]]
-    assert tr.phi.mass_kg[k].item() == data.coin_mass_kg and tr.phi.mu_b[k].item() == data.mu_b
+    assert tr.phi.mass_kg[k].item() == data.mass_kg and tr.phi.mu_b[k].item() == data.mu_b
     assert math.isnan(tr.phi.v_threshold_V[k]), "no V^T unless the kind asks for it"
     assert tr.phi.mu_t[k].item() == data.mu_t == 0.5 and tr.v_prev[k].item() == data.V[k]
     assert tr.phi.mass_kg.shape == (len(tr),) and tr.subset(torch.tensor([k])).phi.mu_t.tolist() == [0.5]

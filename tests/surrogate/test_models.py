@@ -196,7 +196,7 @@ def test_tip_model_predicts_the_fems_static_friction_of_an_unseen_coin(sweep, tr
         return fx[static] / data.Fx[1:][static]
     right = ratio(model.phi_of(data))
     assert abs(right.mean() - 1) < 0.04 and np.abs(right - 1).max() < 0.06, f"model/FEM Fx: {right}"
-    assert ratio(Phi(data.coin_mass_kg, data.mu_b, mu_t=sweep["C1"].mu_t)).mean() < 0.95, "φ's μ_t is used"
+    assert ratio(Phi(data.mass_kg, data.mu_b, mu_t=sweep["C1"].mu_t)).mean() < 0.95, "φ's μ_t is used"
 
 
 PAPER_COIN = {"mass_kg": 1.36e-3, "mu_b": 0.2, "v_threshold_V": 150.0}
@@ -259,4 +259,4 @@ def test_phi_of_a_dataset_without_mu_t_names_the_file_and_attribute(sweep):
     data = replace(sweep["C1"], mu_t=math.nan)
     with pytest.raises(DatasetError, match=r"C1.nc: attribute 'coin_mu_t' is missing"):
         KINDS["f-coulomb"].phi_of(data)
-    assert KINDS["nn"].phi_of(data).mass_kg == data.coin_mass_kg, "the black boxes need no μ_t"
+    assert KINDS["nn"].phi_of(data).mass_kg == data.mass_kg, "the black boxes need no μ_t"

@@ -16,7 +16,7 @@ from deapull.surrogate.rollout import rollout
 def test_phi_of_a_dataset_reads_its_coin(sweep):
     data = sweep["C3"]
     phi = Phi.of(data, v_threshold_V=130.0)
-    assert phi.as_dict() == {"mass_kg": data.coin_mass_kg, "mu_b": 0.2, "mu_t": 0.55, "v_threshold_V": 130.0}
+    assert phi.as_dict() == {"mass_kg": data.mass_kg, "mu_b": 0.2, "mu_t": 0.55, "v_threshold_V": 130.0}
     assert math.isnan(Phi.of(data).v_threshold_V)
     with pytest.raises(AttributeError):
         phi.mu_b = 0.3          # frozen: a coin is a value
@@ -73,7 +73,7 @@ def test_rollout_gradient_per_coin_of_a_batch(sweep, trained):
     """Gradients w.r.t. per-row φ: the final x of rollout i depends on the mass of coin i only."""
     model = trained("f-coulomb").model
     data = sweep["C1"]
-    mass = torch.full((2,), data.coin_mass_kg, requires_grad=True)
+    mass = torch.full((2,), data.mass_kg, requires_grad=True)
     phi = Phi(mass, torch.tensor([0.2, 0.25]), data.mu_t)
     n = 500
     out = rollout(model, phi, np.tile(data.states()[0], (2, 1)), np.tile(data.actions()[:n], (2, 1, 1)))

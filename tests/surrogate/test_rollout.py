@@ -85,7 +85,7 @@ def test_batched_rollout_matches_single(sweep, trained):
 def test_rollout_is_differentiable_in_phi(sweep, trained):
     model = trained("f-coulomb").model
     data = sweep["C1"]
-    mass = torch.tensor(data.coin_mass_kg, requires_grad=True)
+    mass = torch.tensor(data.mass_kg, requires_grad=True)
     out = rollout(model, Phi(mass, data.mu_b, data.mu_t), data.states()[0], data.actions()[:500])
     assert out.engine == "torch"
     out.states[0, -1, 0].backward()
