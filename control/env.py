@@ -32,8 +32,13 @@ episode ends (``terminated``) at success unless ``terminate_on_success=False`` (
 harness keeps stepping to see whether the coin stays), and is truncated after
 ``max_steps``.
 
-``info`` holds the step, time, voltage and ΔV (:data:`POLICY_INFO`, what a policy may
-read), the true state and error, ``success`` and ``reached_step`` (first success).
+``info`` holds the step, time, voltage, ΔV and the current target (:data:`POLICY_INFO`,
+what a policy may read), the true state and error, ``success`` and ``reached_step`` (first
+success of the current target).
+
+**Setpoints.** :meth:`CoinPushEnv.set_target` moves the target during an episode (the
+multi-setpoint task: push to −0.5 mm, on to −1.0 mm, pull back to −0.7 mm); success and
+``reached_step`` then refer to the new target. A policy reads the target from ``info``.
 """
 from __future__ import annotations
 
@@ -62,7 +67,7 @@ OBS_BOUND = 100.0
 #: voltage step (V) of the ramp from 0 V to an episode's start voltage (the FEM data's rate)
 START_RAMP_V = 0.5
 #: info keys a policy may read (the rest is the true state, for reporting)
-POLICY_INFO = ("step", "t_s", "V_V", "dV_V")
+POLICY_INFO = ("step", "t_s", "V_V", "dV_V", "target_m")
 
 
 def policy_view(info: dict) -> dict:
@@ -173,6 +178,14 @@ class CoinPushEnv(gym.Env):
 
     # --- reading observations and writing actions ---------------------------------------
 
+    def set_target(self, target_m: float) -> None:
+        """Move the target to ``target_m`` (m, < 0) from the next step on; ``reached_step``
+        starts afresh."""
+        target_m = float(target_m)
+        if not (math.isfinite(target_m) and target_m < 0):
+            raise InputError(f"target_m = {target_m!r}: must be a finite number < 0 (the coin moves toward -x)")
+        self.target_m, self.reached_step = target_m, None
+
     def task_spec(self) -> TaskSpec:
         """What a policy may know of this task (:class:`TaskSpec`): the only thing
         ``Policy.reset`` gets."""
@@ -227,6 +240,7 @@ class CoinPushEnv(gym.Env):
 
     def _info(self, dV: float) -> dict:
         x, u = float(self.state[0]), float(self.state[1])
-        return {"step": self.steps, "t_s": self.plant.t, "V_V": self.V, "dV_V": dV, "x_m": x, "u_m_s": u,
+        return {"step": self.steps, "t_s": self.plant.t, "V_V": self.V, "dV_V": dV, "target_m": self.target_m,
+                "x_m": x, "u_m_s": u,
                 "error_m": x - self.target_m, "success": bool(abs(x - self.target_m) < self.tolerance_m),
                 "reached_step": self.reached_step}

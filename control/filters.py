@@ -8,6 +8,13 @@ straight into its action; these filters average it out with a model of the motio
   the controller's own model (f_a with the current φ, from the previous estimate and the
   two applied voltages); its process noise q (m per step) stands for the model's error.
   The velocity estimate is the model's prediction.
+* :class:`BiasKalman` — the offset-free MPC's estimator: a two-state Kalman filter on
+  (x, g), g the model's gain error, x' = x + (1 + g) Δ with Δ the model's predicted step.
+  A model that is wrong by a constant factor while the coin slides (f_a trained on other
+  coins, or on the surrogate's data while the plant is the FEM) shows in the innovations
+  of every moving step; g takes them up, and the MPC plans the corrected travel
+  (:mod:`deapull.control.mpc_policy`). While the coin is stuck (Δ = 0) g is not
+  observable and stays; x is then the average of the observations.
 * :class:`ConstantVelocityKalman` — the PD's filter (it has no model): a two-state
   Kalman filter on (x, u) with a constant-velocity prediction and white acceleration
   noise of std ``accel_std`` (m/s²), i.e. an alpha–beta filter with the optimal,
@@ -62,6 +69,84 @@ class ModelKalman:
         gain = prior / (prior + self.r)
         self.x = float(x_pred) + gain * (float(x_obs) - float(x_pred))
         self.P = (1 - gain) * prior
+        return self.x
+
+
+class BiasKalman:
+    """Kalman filter on (x, g): the position and the model's gain error (module docstring).
+
+    Parameters
+    ----------
+    noise_std_m : float
+        σ of the observation noise (m); 0 (exact observations) is kept as a floor of 1 nm
+        so that g is still learnt from the steps.
+    process_std_m : float
+        q₀: std of the model's one-step position error at rest (m).
+    process_fraction : float
+        κ: the rest of the model's error while the coin moves, as a fraction of the
+        predicted step (what a constant g does not explain).
+    gain_prior_std : float
+        Std of g before any motion (0.3: the model's travel may be 30 % off).
+    gain_drift_std : float
+        Std of g's random walk per moving step (lets g follow a slowly changing error).
+    gain_bounds : (float, float)
+        g is kept inside (the corrected step (1 + g) Δ never reverses or explodes).
+    """
+
+    NOISE_FLOOR_M = 1e-9
+
+    def __init__(self, noise_std_m: float, process_std_m: float = 1e-6, process_fraction: float = 0.05,
+                 gain_prior_std: float = 0.3, gain_drift_std: float = 2e-3, gain_bounds=(-0.6, 1.5)):
+        if not (noise_std_m >= 0 and process_std_m > 0 and process_fraction >= 0 and gain_prior_std > 0
+                and gain_drift_std >= 0 and gain_bounds[0] < 0 < gain_bounds[1]):
+            raise ValueError(f"noise std {noise_std_m} >= 0, process std {process_std_m} > 0, process fraction "
+                             f"{process_fraction} >= 0, gain prior std {gain_prior_std} > 0, drift "
+                             f"{gain_drift_std} >= 0 and gain bounds {gain_bounds} around 0 needed")
+        self.r = max(float(noise_std_m), self.NOISE_FLOOR_M) ** 2
+        self.q, self.kappa = float(process_std_m) ** 2, float(process_fraction)
+        self.p_g, self.q_g, self.bounds = float(gain_prior_std) ** 2, float(gain_drift_std) ** 2, gain_bounds
+        self.s, self.P = np.array([math.nan, 0.0]), np.zeros((2, 2))
+
+    @property
+    def x(self) -> float:
+        return float(self.s[0])
+
+    @property
+    def gain(self) -> float:
+        """g: the plant moves (1 + g) times the model's predicted step."""
+        return float(self.s[1])
+
+    @property
+    def std_m(self) -> float:
+        """Standard deviation of the position estimate (m)."""
+        return math.sqrt(max(self.P[0, 0], 0.0))
+
+    def reset(self, x_obs: float) -> float:
+        """Start from the first observation, g = 0 with its prior."""
+        self.s = np.array([float(x_obs), 0.0])
+        self.P = np.diag([self.r, self.p_g])
+        return self.x
+
+    def corrected(self, step_m: float) -> float:
+        """The model's step ``step_m`` as the plant is expected to move it, (1 + g) Δ."""
+        return (1.0 + self.gain) * float(step_m)
+
+    def update(self, step_m: float, x_obs: float, held: bool = False) -> float:
+        """The position estimate after the model predicted the step ``step_m`` (m, from the
+        previous estimate) and ``x_obs`` was observed. ``held``: the voltage did not change
+        and the model predicts no motion; static friction holds the coin, so the step adds
+        no process noise and the observations average down as σ/√n."""
+        d = float(step_m)
+        F = np.array([[1.0, d], [0.0, 1.0]])
+        s = np.array([self.s[0] + self.corrected(d), self.s[1]])
+        moving = d != 0.0
+        q = 0.0 if held and not moving else self.q
+        Q = np.diag([q + (self.kappa * d) ** 2, self.q_g if moving else 0.0])
+        P = F @ self.P @ F.T + Q
+        gain = P[:, 0] / (P[0, 0] + self.r)
+        self.s = s + gain * (float(x_obs) - s[0])
+        self.P = P - np.outer(gain, P[0, :])
+        self.s[1] = float(np.clip(self.s[1], *self.bounds))
         return self.x
 
 

@@ -20,11 +20,27 @@ of the cheaper plan.
 from the previous estimate and the applied voltages. The position is the observation
 itself, or with ``filter="kf"`` (policy ``mpc+kf``) the estimate of a Kalman filter whose
 prediction is that same model step (:mod:`deapull.control.filters`).
+
+**Offset-free tracking** (``offset_free=True``, the default, at every noise level). f_a is
+a model of other coins (C3..C7) and of the surrogate's data, not of the plant: on the FEM
+its travel per volt is off by a roughly constant factor while the coin slides, and an MPC
+that trusts it overshoots or stops short. A :class:`~deapull.control.filters.BiasKalman`
+estimates that factor, g, with the position (x' = x + (1 + g) Δ, Δ the model's step), and
+the plan aims the model at x̂ + (x^T − x̂)/(1 + g): the model's travel that the plant turns
+into the remaining distance. Once the estimate is inside ``hold_band`` × tolerance of the
+target the policy holds V (ΔV = 0): at constant V static friction holds the coin, so
+holding is what settles it, and the MPC's own small corrections on a noisy estimate are
+what would move it out. Past the target the plan may bring V down (the release pulls the
+coin back toward the clamp).
+
+**Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
+moves the setpoint (push, push, pull back) re-plans at once.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 import time
 from dataclasses import dataclass, field, replace
 
@@ -32,7 +48,7 @@ import torch
 
 from deapull.control import mpc, native
 from deapull.control.dynamics import COSTS, U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics, coin_cost
-from deapull.control.filters import FILTERS, ModelKalman
+from deapull.control.filters import FILTERS, BiasKalman, ModelKalman
 from deapull.control.inference import InferenceConfig, OnlineInference
 from deapull.control.policies import Policy
 from deapull.errors import InputError
@@ -81,6 +97,19 @@ class MPCConfig:
         ``process_std_m`` per step at rest, plus ``process_fraction`` of each predicted
         step); the policy is then named ``mpc+kf``.
     process_std_m, process_fraction : float
+    offset_free : bool
+        Estimate f_a's gain error g with the position (:class:`BiasKalman`, whatever the noise;
+        it replaces ``filter``) and plan the corrected travel (module docstring).
+    bias_process_fraction : float
+        The bias filter's κ: the model's error per moving step that g does not explain.
+    hold_band : float
+        Hold V while the estimate is within this fraction of the tolerance, plus ``hold_stds``
+        of its own standard deviations, of the target (0: never hold; the MPC alone
+        decides); outside, the plan aims at the near edge of that region.
+    hold_stds : float
+    creep_V : float
+        Outside the hold region the smallest |ΔV| per step (V): the heuristic's 0.5 V, a
+        rate that still drags the coin; smaller planned steps are raised to it.
     """
 
     horizon: int = 20
@@ -94,12 +123,19 @@ class MPCConfig:
     filter: str = "none"
     process_std_m: float = 1e-6
     process_fraction: float = 0.2
+    offset_free: bool = True
+    bias_process_fraction: float = 0.2
+    hold_band: float = 0.5
+    hold_stds: float = 1.0
+    creep_V: float = 0.5
 
     def __post_init__(self):
         if self.filter not in FILTERS:
             raise InputError(f"MPC filter {self.filter!r}: choose one of {', '.join(FILTERS)}")
         if self.engine not in ENGINES:
             raise InputError(f"MPC engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
+        if not 0 <= self.hold_band <= 1:
+            raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
         if self.horizon < 1 or self.iterations < 0:
             raise InputError(f"MPC horizon {self.horizon} must be >= 1 and iterations {self.iterations} >= 0")
         if self.cost not in COSTS:
@@ -130,7 +166,7 @@ class MPCPolicy(Policy):
 
     def __init__(self, model, config: MPCConfig = MPCConfig(), phi: Phi | None = None):
         self.model, self.config = model, config
-        self.name = "mpc" if config.filter == "none" else f"mpc+{config.filter}"
+        self.name = "mpc" if config.filter == "none" or config.offset_free else f"mpc+{config.filter}"
         if not config.infer and phi is None:
             raise InputError("an MPC without inference needs the φ to plan with")
         self.fixed_phi = None if phi is None else model.check_phi(phi).to(dtype=torch.float64)
@@ -143,8 +179,10 @@ class MPCPolicy(Policy):
         self.dt, self.dv_max_V, self.v_max_V = float(spec.dt_s), float(spec.dv_max_V), float(spec.v_max_V)
         noise = float(spec.noise_std_m)
         self.noisy = noise > 0
-        self.kalman = None
-        if cfg.filter == "kf":
+        self.kalman = self.bias = None
+        if cfg.offset_free:
+            self.bias = BiasKalman(noise, cfg.process_std_m, cfg.bias_process_fraction)
+        elif cfg.filter == "kf":
             self.kalman = ModelKalman(noise, cfg.process_std_m, cfg.process_fraction)
         if cfg.infer:
             # a transition counts as moving (stick hinge) only beyond 3 noise stds
@@ -157,7 +195,7 @@ class MPCPolicy(Policy):
         phi = self.inference.phi if cfg.infer else self.fixed_phi
         self.dynamics = make_dynamics(self.model, phi, self.dt, self.dv_max_V, self.v_max_V, cfg.engine)
         self.native = callable(getattr(self.dynamics, "solve", None))
-        self.cost = coin_cost(self.target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight)
+        self.cost = self._cost(self.target_m)
         self.plan = None
         self.previous = None          # (x, u, V) estimate of the previous step
         self.solve_ms, self.inference_ms = [], []
@@ -165,25 +203,50 @@ class MPCPolicy(Policy):
     def inferred(self) -> dict:
         return self.inference.estimate() if self.inference is not None else {}
 
+    def _cost(self, model_target_m: float):
+        cfg = self.config
+        return coin_cost(model_target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight)
+
+    @property
+    def estimate_std_m(self) -> float:
+        """Std of the position estimate (m): the bias filter's, else 0."""
+        return self.bias.std_m if self.bias is not None and self.noisy else 0.0
+
+    @property
+    def gain_error(self) -> float:
+        """The bias filter's g (0 without one): the plant moves (1 + g) × f_a's step."""
+        return self.bias.gain if self.bias is not None else 0.0
+
     def _estimate(self, x: float, V: float) -> tuple[float, float]:
         """(x, u) to plan from, given the observed x and the applied V (module docstring)."""
         if self.previous is None:
+            if self.bias is not None:
+                return self.bias.reset(x), 0.0
             return (x if self.kalman is None else self.kalman.reset(x)), 0.0
         x0, u0, V0 = self.previous
-        if not self.noisy:
+        if not self.noisy and self.bias is None:
             return x, (x - x0) / self.dt
         with torch.no_grad():
             pred = self.dynamics(self.dynamics.state(x0, u0, V0),
                                  torch.tensor([[(V - V0) / self.dv_max_V]], dtype=torch.float64))[0]
-        u = float(pred[1]) * U_UNIT_M_S
+        x_pred, u_pred = float(pred[0]) * X_UNIT_M, float(pred[1]) * U_UNIT_M_S
+        if self.bias is not None:
+            x_obs = x
+            x = self.bias.update(x_pred - x0, x_obs, held=V == V0 and abs(u0) < 1e-9)
+            if not self.noisy:
+                return x_obs, (x_obs - x0) / self.dt
+            return x, (1.0 + self.bias.gain) * u_pred
         if self.kalman is not None:
-            x = self.kalman.update(float(pred[0]) * X_UNIT_M, x)
-        return x, u
+            x = self.kalman.update(x_pred, x)
+        return x, u_pred
 
     @torch.no_grad()
     def act(self, obs, info) -> float:
         cfg = self.config
         x, V = self.spec.position_of(obs), float(info["V_V"])
+        target = float(info.get("target_m", self.target_m))
+        if target != self.target_m:          # a new setpoint: plan afresh
+            self.target_m, self.plan = target, None
         if cfg.infer:
             start = time.perf_counter()
             self.inference.observe(x, V)
@@ -196,11 +259,26 @@ class MPCPolicy(Policy):
         xi0 = self.dynamics.state(x, u, V)
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
+        # hold while the target is within the band plus the estimate's own uncertainty: at
+        # constant V static friction holds the coin and the estimate's std shrinks as the
+        # observations average; outside, aim at the near edge of that region (creep in)
+        margin = cfg.hold_band * self.tolerance_m + cfg.hold_stds * self.estimate_std_m
+        if cfg.hold_band > 0 and abs(x - self.target_m) <= margin:
+            self.plan = torch.zeros(1, T, 1, dtype=torch.float64)
+            self.solve_ms.append(1e3 * (time.perf_counter() - start))
+            return 0.0
+        aim = self.target_m
+        if cfg.hold_band > 0:
+            aim += math.copysign(cfg.hold_stds * self.estimate_std_m, x - self.target_m)
+        # the model's travel that the plant turns into the remaining distance (1 + g) Δ
+        model_target = x + (aim - x) / (1.0 + self.gain_error)
+        self.cost = self._cost(model_target)
+        tolerance = self.tolerance_m / (1.0 + self.gain_error)
         out_of_reach = False
-        if x - self.target_m > self.tolerance_m:
+        if x - model_target > tolerance:
             roll = self.dynamics.rollout if self.native else functools.partial(mpc.rollout, self.dynamics)
             reach = roll(xi0, ramp)[0, :, 0] * X_UNIT_M
-            out_of_reach = bool(reach.min() > self.target_m + self.tolerance_m)
+            out_of_reach = bool(reach.min() > model_target + tolerance)
         if out_of_reach:
             self.plan = ramp
         else:
@@ -209,4 +287,9 @@ class MPCPolicy(Policy):
             sol = solver(self.cost, xi0.repeat(2, 1), torch.cat([warm, ramp]), -1.0, 1.0, iterations=cfg.iterations)
             self.plan = sol.u[int(sol.cost.argmin())].unsqueeze(0)
         self.solve_ms.append(1e3 * (time.perf_counter() - start))
-        return float(self.plan[0, 0, 0]) * self.dv_max_V
+        dV = float(self.plan[0, 0, 0]) * self.dv_max_V
+        if cfg.hold_band > 0 and 0 < abs(dV) < cfg.creep_V:
+            # outside the hold region a step too small to drag the coin (its slip rate under
+            # the friction's regularisation, docs/control.md) would only stall: creep instead
+            dV = math.copysign(cfg.creep_V, dV)
+        return dV

@@ -20,7 +20,8 @@ def cmd_control(args) -> int:
         plants=control.parse_plants(args.plant, args.scene),
         noises=control.parse_noises(args.noise),
         out=Path(args.out), episodes=args.episodes, seed=args.seed, dv_max_V=args.dv_max,
-        max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm, data=Path(args.data),
+        max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm,
+        setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, phi_prior=args.phi_prior, infer_optimizer=args.infer_optimizer,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
@@ -33,13 +34,27 @@ def cmd_control(args) -> int:
     return 0
 
 
+def parse_setpoints(text: str) -> list[float]:
+    """``-0.5,-1.0,-0.7`` (mm) as metres; every item a number (the sign is checked with the rest)."""
+    out = []
+    for item in [t.strip() for t in str(text).split(",") if t.strip()] or [text]:
+        try:
+            out.append(1e-3 * float(item))
+        except ValueError:
+            raise InputError(f"--setpoints-mm {item!r}: not a number (setpoints in mm, comma-separated, "
+                             "e.g. -0.5,-1.0,-0.7)") from None
+    return out
+
+
 def register(sub) -> None:
     """Add ``control`` to the ``deapull`` sub-parsers."""
     p = sub.add_parser("control", help="closed-loop control episodes: MPC, SAC, PD, heuristic on surrogate or "
                                        "FEM plants (CSV, table beside the paper, Fig. 6 plots)")
     p.add_argument("--policy", required=True,
                    help="policy or comma-separated policies: mpc, sac, pd (K_p -0.5, K_d 5 V/mm), heur (+0.5 V/step); "
-                        "mpc+kf, pd+kf: the same acting on a Kalman estimate of the position")
+                        "mpc is offset-free (it estimates f_a's gain error with the position and holds V once "
+                        "the estimate is inside the window); mpc+kf: the earlier MPC on a position-only Kalman "
+                        "estimate; pd+kf: the PD on a constant-velocity Kalman estimate")
     p.add_argument("--plant", required=True,
                    help="plant(s) KIND:SETUP, comma-separated: surrogate:C1 (the paper's f_s,1), fem:C1 (the FEM "
                         "stepped online)")
@@ -55,6 +70,9 @@ def register(sub) -> None:
     p.add_argument("--hold", type=int, default=100,
                    help="steps run after the first success to judge settling (default 100)")
     p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position x^T (mm; default -1)")
+    p.add_argument("--setpoints-mm", default=None,
+                   help="a multi-setpoint task instead of --target-mm: setpoints visited in turn, each reached and "
+                        "then held for --hold steps, e.g. -0.5,-1.0,-0.7 (push, push, pull back)")
     p.add_argument("--data", default="data", help="folder with <setup>.nc: the surrogate plants' coin φ (data)")
     p.add_argument("--plant-model", default="out/models/fs{n}",
                    help="surrogate plant model folder; {setup} -> C1, {n} -> 1 (default out/models/fs{n})")

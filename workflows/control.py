@@ -53,7 +53,9 @@ PAPER = CONTROL
 #: φ fields reported (true and inferred)
 PHI_FIELDS = ("mass_kg", "mu_b", "mu_t", "v_threshold_V")
 COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max_V", "step_limit", "hold_steps",
-           "iterations_to_target", "reached", "settled", "hold_inside_fraction", "hold_max_abs_error_m",
+           "setpoints_mm", "setpoints_reached", "setpoints_settled", "iterations_per_setpoint",
+           "iterations_to_target", "reached", "settled", "overshoot_m", "hold_inside_fraction",
+           "hold_max_abs_error_m",
            "final_abs_error_m", "final_x_m", "final_V_V", "steps_run",
            "ms_per_iteration", "solve_ms_per_iteration", "inference_ms_per_iteration", "plant_ms_per_step",
            "training_steps", "status")
@@ -96,6 +98,7 @@ class ControlConfig:
     max_steps: int = 4000
     hold_steps: int = 100
     target_m: float = -1e-3
+    setpoints_m: list | None = None
     tolerance_m: float = 1e-5
     data: Path = Path("data")
     plant_model: str = "out/models/fs{n}"
@@ -109,6 +112,11 @@ class ControlConfig:
     scene: str = "coin_pull"
     overrides: list = field(default_factory=list)
     progress: bool = True
+
+    @property
+    def task(self) -> tuple:
+        """The setpoints an episode visits in turn: ``setpoints_m``, or the target alone."""
+        return tuple(self.setpoints_m) if self.setpoints_m else (self.target_m,)
 
     def folder(self, pattern: str, setup: str) -> Path:
         return Path(pattern.format(setup=setup, n=re.sub(r"\D", "", setup)))
@@ -170,6 +178,10 @@ def check(config: ControlConfig) -> None:
     if not (math.isfinite(config.target_m) and config.target_m < 0):
         raise InputError(f"--target-mm {1e3 * config.target_m!r}: must be a finite number < 0 (the coin moves "
                          "toward -x)")
+    for t in config.setpoints_m or ():
+        if not (math.isfinite(t) and t < 0):
+            raise InputError(f"--setpoints-mm {1e3 * t!r}: every setpoint must be a finite number < 0 (mm; the "
+                             "coin moves toward -x)")
     if any(p.kind == "fem" for p in config.plants):
         if importlib.util.find_spec("dolfinx") is None:
             raise InputError("--plant fem:...: the FEM plant needs dolfinx (FEniCSx), which is not installed")
@@ -224,7 +236,7 @@ def build_plant(config: ControlConfig, spec: PlantSpec):
 def make_env(config: ControlConfig, plant, noise_std_m: float, **kwargs):
     from deapull.control.env import CoinPushEnv
     options = dict(target_m=config.target_m, tolerance_m=config.tolerance_m, dv_max_V=config.dv_max_V,
-                   max_steps=config.max_steps + config.hold_steps, noise_std_m=noise_std_m,
+                   max_steps=(config.max_steps + config.hold_steps) * len(config.task), noise_std_m=noise_std_m,
                    terminate_on_success=False)
     return CoinPushEnv(plant, **{**options, **kwargs})
 
@@ -262,7 +274,11 @@ def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
     model, _ = store.load(config.mpc_model)
     from deapull.control.inference import COIN_PRIOR, InferenceConfig
     prior = {"none": None, "coins": COIN_PRIOR}[config.phi_prior]
+    # mpc: offset-free (gain-error filter, hold inside the window); mpc+kf: the earlier MPC on a
+    # position-only Kalman estimate, kept to measure what the offset-free parts add
+    plain = filter == "kf"
     settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle, filter=filter,
+                         offset_free=not plain, hold_band=0.0 if plain else MPCConfig.hold_band,
                          inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
     return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
 
@@ -280,52 +296,84 @@ class Episode:
     inferred: dict
 
 
-def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=None) -> Episode:
+def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=None,
+                setpoints_m: tuple | None = None) -> Episode:
     """Run ``policy`` on ``env`` (``terminate_on_success=False``, ``max_steps`` ≥
-    ``step_limit + hold_steps``) from ``reset(seed)``.
+    ``(step_limit + hold_steps)`` × the number of setpoints) from ``reset(seed)``.
 
-    Stops ``hold_steps`` after the first success, or after ``step_limit`` steps without one;
-    a plant failure ends the episode with its message as ``status``.
+    ``setpoints_m`` (default: the env's target alone) are taken in turn: each runs until the
+    true |x − x^T| first drops below the tolerance (*reached*; its iterations count from the
+    setpoint's start) or ``step_limit`` steps pass, then ``hold_steps`` more (*settled*: inside
+    for all of them); a setpoint never reached ends the episode. *Overshoot* is how far the
+    coin went past a setpoint in the direction it was approached. A plant failure ends the
+    episode with its message as ``status``.
     """
     from deapull.control.env import policy_view
     from deapull.control.plants import PlantFailed
+    setpoints = tuple(float(t) for t in (setpoints_m or (env.target_m,)))
     obs, info = env.reset(seed=seed)
+    env.set_target(setpoints[0])
+    info = {**info, "target_m": setpoints[0]}
     policy.reset(env.task_spec())
     xs, Vs, inferred = [info["x_m"]], [env.V], {}
     act_s = plant_s = 0.0
-    reached, status, inside = None, "ok", []
+    status, phases = "ok", []
     try:
-        while True:
-            start = time.perf_counter()
-            dV = float(policy.act(obs, policy_view(info)))
-            act_s += time.perf_counter() - start
-            start = time.perf_counter()
-            obs, _, _, _, info = env.step(env.action_of(dV))
-            plant_s += time.perf_counter() - start
-            xs.append(info["x_m"])
-            Vs.append(info["V_V"])
-            for k, v in policy.inferred().items():
-                inferred.setdefault(k, []).append(v)
-            if reached is None and info["success"]:
-                reached = info["step"]
-            if reached is not None:
-                inside.append(info["success"])
-            if bar is not None and info["step"] % 100 == 0:
-                bar.set_postfix_str(f"step {info['step']}", refresh=False)
-            if (reached is None and info["step"] >= step_limit) or len(inside) > hold_steps:
+        for k, target in enumerate(setpoints):
+            if k:
+                env.set_target(target)
+                info = {**info, "target_m": target}
+            start_step, x_start = info["step"], info["x_m"]
+            direction = 1.0 if target > x_start else -1.0
+            phase = {"target_m": target, "reached": None, "inside": [], "overshoot_m": 0.0, "hold_error_m": 0.0}
+            phases.append(phase)
+            while True:
+                start = time.perf_counter()
+                dV = float(policy.act(obs, policy_view(info)))
+                act_s += time.perf_counter() - start
+                start = time.perf_counter()
+                obs, _, _, _, info = env.step(env.action_of(dV))
+                plant_s += time.perf_counter() - start
+                xs.append(info["x_m"])
+                Vs.append(info["V_V"])
+                for key, v in policy.inferred().items():
+                    inferred.setdefault(key, []).append(v)
+                phase["overshoot_m"] = max(phase["overshoot_m"], direction * (info["x_m"] - target))
+                if phase["reached"] is None and info["success"]:
+                    phase["reached"] = info["step"] - start_step
+                if phase["reached"] is not None:
+                    phase["inside"].append(info["success"])
+                    phase["hold_error_m"] = max(phase["hold_error_m"], abs(info["x_m"] - target))
+                if bar is not None and info["step"] % 100 == 0:
+                    bar.set_postfix_str(f"step {info['step']}", refresh=False)
+                if phase["reached"] is None and info["step"] - start_step >= step_limit:
+                    break
+                if len(phase["inside"]) > hold_steps:
+                    break
+            if phase["reached"] is None:
                 break
     except PlantFailed as err:
         status = f"plant failed: {err}"
     n = len(xs) - 1
+    for phase in phases:
+        phase["settled"] = phase["reached"] is not None and len(phase["inside"]) > hold_steps and all(phase["inside"])
+    inside = [s for phase in phases for s in phase["inside"]]
+    first, last = phases[0], phases[-1]
     estimate = {k: v[-1] for k, v in inferred.items()}
     truth = env.plant.truth.as_dict() if env.plant.truth is not None else {}
+    all_reached = len(phases) == len(setpoints) and all(ph["reached"] is not None for ph in phases)
     row = {"policy": policy.name, "plant": env.plant.name, "seed": seed, "noise_std_m": env.noise_std_m,
            "dv_max_V": env.dv_max_V, "step_limit": step_limit, "hold_steps": hold_steps,
-           "iterations_to_target": reached, "reached": reached is not None,
-           "settled": reached is not None and len(inside) > hold_steps and all(inside),
+           "setpoints_mm": ";".join(f"{1e3 * t:g}" for t in setpoints),
+           "setpoints_reached": sum(ph["reached"] is not None for ph in phases),
+           "setpoints_settled": sum(ph["settled"] for ph in phases),
+           "iterations_to_target": first["reached"], "reached": all_reached,
+           "settled": all_reached and all(ph["settled"] for ph in phases),
+           "iterations_per_setpoint": ";".join(str(ph["reached"]) for ph in phases),
            "hold_inside_fraction": float(np.mean(inside)) if inside else None,
-           "hold_max_abs_error_m": max(abs(x - env.target_m) for x in xs[reached:]) if reached else None,
-           "final_abs_error_m": abs(xs[-1] - env.target_m), "final_x_m": xs[-1], "final_V_V": Vs[-1],
+           "hold_max_abs_error_m": max(ph["hold_error_m"] for ph in phases) if all_reached else None,
+           "overshoot_m": max(ph["overshoot_m"] for ph in phases),
+           "final_abs_error_m": abs(xs[-1] - last["target_m"]), "final_x_m": xs[-1], "final_V_V": Vs[-1],
            "steps_run": n, "ms_per_iteration": 1e3 * act_s / max(n, 1), "plant_ms_per_step": 1e3 * plant_s / max(n, 1),
            "status": status, "training_steps": getattr(policy, "training_steps", None), **_timings(policy),
            **{f"true_{f}": truth.get(f) for f in PHI_FIELDS},
@@ -361,7 +409,8 @@ def run(config: ControlConfig) -> list[Episode]:
                     env = make_env(config, plant, noise)
                     for i in range(config.episodes):
                         bar.set_description(f"{name} on {spec.name}, noise {noise:g} m")
-                        ep = run_episode(env, policy, config.seed + i, config.max_steps, config.hold_steps, bar)
+                        ep = run_episode(env, policy, config.seed + i, config.max_steps, config.hold_steps, bar,
+                                         setpoints_m=config.task)
                         ep.row.update(setup=spec.setup, episode=i)
                         episodes.append(ep)
                         bar.update(1)
@@ -380,8 +429,10 @@ def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
         return
     steps = math.ceil(V_MAX_V / config.dv_max_V) + REACH_HOLD_STEPS
     reach = ramp_reach_m(plant, config.dv_max_V, V_MAX_V, steps)
-    if reach > config.target_m + config.tolerance_m:
-        raise InputError(f"--target-mm {1e3 * config.target_m:g}: {spec.name} cannot reach it; its coin gets to "
+    furthest = min(config.task)
+    if reach > furthest + config.tolerance_m:
+        option = "--setpoints-mm" if config.setpoints_m else "--target-mm"
+        raise InputError(f"{option} {1e3 * furthest:g}: {spec.name} cannot reach it; its coin gets to "
                          f"{1e3 * reach:.4f} mm at most under the fastest push (+{config.dv_max_V:g} V per step to "
                          f"{V_MAX_V:g} V, then held {REACH_HOLD_STEPS} steps); choose a target within reach")
 
@@ -405,16 +456,19 @@ def summary_rows(rows: list[dict]) -> list[dict]:
     """One row per (policy, plant, noise): counts, medians and the paper's numbers."""
     groups: dict = {}
     for r in rows:
-        groups.setdefault((r["policy"], r["plant"], r["noise_std_m"]), []).append(r)
+        groups.setdefault((r["policy"], r["plant"], r["noise_std_m"], r.get("setpoints_mm", "")), []).append(r)
     out = []
-    for (policy, plant, noise), group in groups.items():
+    for (policy, plant, noise, task), group in groups.items():
         its = [r["iterations_to_target"] for r in group if r["reached"]]
         q = np.percentile(its, [25, 50, 75]) if its else [math.nan] * 3
         paper_its, paper_ms = PAPER[policy.split("+")[0]]
-        out.append({"policy": policy, "plant": plant, "noise": noise, "reached": f"{len(its)}/{len(group)}",
+        overshoot = [r["overshoot_m"] for r in group if r.get("overshoot_m") is not None]
+        out.append({"policy": policy, "plant": plant, "noise": noise, "task": task,
+                    "reached": f"{len(its)}/{len(group)}",
                     "settled": f"{sum(r['settled'] for r in group)}/{len(group)}",
                     "its": "–" if not its else f"{q[1]:.0f} [{q[0]:.0f}–{q[2]:.0f}]",
                     "error_mm": 1e3 * float(np.median([r["final_abs_error_m"] for r in group])),
+                    "overshoot_mm": 1e3 * max(overshoot) if overshoot else math.nan,
                     "ms": float(np.mean([r["ms_per_iteration"] for r in group])),
                     "training": group[0]["training_steps"],
                     "paper_its": paper_its, "paper_ms": paper_ms})
@@ -425,9 +479,9 @@ def summary_table(rows: list[dict]) -> str:
     """Markdown: per policy, plant and noise, beside the paper's iterations and time."""
     return markdown_table(summary_rows(rows), [
         ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
-        ("reached", "reached", "s"), ("settled", "settled", "s"),
+        ("setpoints (mm)", "task", "s"), ("reached", "reached", "s"), ("settled", "settled", "s"),
         ("iterations to target, median [25–75 %]", "its", "s"),
-        ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("ms / iteration", "ms", ".3g"),
+        ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("largest overshoot (mm)", "overshoot_mm", ".3g"), ("ms / iteration", "ms", ".3g"),
         ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
         ("paper: ms / iteration", "paper_ms", "g")])
 

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from deapull.control.filters import ConstantVelocityKalman, ModelKalman
+from deapull.control.filters import BiasKalman, ConstantVelocityKalman, ModelKalman
 
 
 @pytest.fixture(scope="module")
@@ -37,6 +37,31 @@ def test_model_kalman_averages_the_noise_out(sigma):
     rms = math.sqrt(np.mean(err ** 2))
     assert rms < 0.25 * math.sqrt(np.mean(raw ** 2))
     assert rms < 3 * math.sqrt(1e-6 * sigma) + 2e-5          # ~√(qσ) plus the model's bias
+
+
+@pytest.mark.parametrize("sigma", [0.0, 1e-4])
+def test_bias_kalman_learns_a_constant_gain_error_and_removes_the_offset(sigma):
+    """The plant moves 1.25 × the model's step. The filter's g goes to 0.25 while the coin
+    slides, so its position no longer lags the truth; a filter told g = 0 (a ModelKalman
+    with the same process noise) ends with the offset of a quarter of the travel."""
+    x, _ = coin_path()
+    model_steps = np.diff(x) / 1.25                     # the model under-predicts every step
+    rng = np.random.default_rng(2)
+    obs = x + sigma * rng.standard_normal(len(x))
+    kf = BiasKalman(sigma, process_std_m=1e-7, process_fraction=0.01)
+    plain = ModelKalman(max(sigma, 1e-9), process_std_m=1e-7, process_fraction=0.01)
+    est, naive = [kf.reset(obs[0])], [plain.reset(obs[0])]
+    for i in range(1, len(x)):
+        est.append(kf.update(model_steps[i - 1], obs[i]))
+        naive.append(plain.update(naive[-1] + model_steps[i - 1], obs[i]))
+    assert kf.gain == pytest.approx(0.25, abs=0.02 if sigma else 1e-3)
+    end = slice(450, None)                              # at rest after the slide
+    offset = abs(np.mean(np.array(est[end]) - x[end]))
+    print(f"sigma {sigma}: g {kf.gain:.4f}, offset {offset:.3g} m, naive "
+          f"{abs(np.mean(np.array(naive[end]) - x[end])):.3g} m")
+    assert offset < (0.15 * sigma if sigma else 1e-8)           # sigma / sqrt(150 samples at rest)
+    if sigma:
+        assert abs(np.mean(np.array(naive[end]) - x[end])) > 5 * offset
 
 
 def test_constant_velocity_kalman_tracks_a_moving_coin():
@@ -86,10 +111,15 @@ def test_mpc_with_a_filter_holds_the_target_closer_under_noise(coulomb_and_plant
     from .conftest import FIXTURE_TARGET_M
     model, plant = coulomb_and_plant
     rows = {}
-    for f in ("none", "kf"):
+    for name, f, offset_free in (("raw", "none", False), ("kf", "kf", False), ("offset-free", "none", True)):
         env = CoinPushEnv(plant, target_m=FIXTURE_TARGET_M, terminate_on_success=False, max_steps=400,
                           noise_std_m=1e-4)
-        policy = MPCPolicy(model, MPCConfig(horizon=10, iterations=4, infer=False, filter=f), phi=plant.truth)
-        rows[policy.name] = run_episode(env, policy, seed=0, step_limit=300, hold_steps=60).row
-    assert rows["mpc+kf"]["reached"] and rows["mpc"]["reached"]
-    assert rows["mpc+kf"]["hold_max_abs_error_m"] < 0.5 * rows["mpc"]["hold_max_abs_error_m"]
+        config = MPCConfig(horizon=10, iterations=4, infer=False, filter=f, offset_free=offset_free,
+                           hold_band=0.5 if offset_free else 0.0)
+        rows[name] = run_episode(env, MPCPolicy(model, config, phi=plant.truth), seed=0, step_limit=300,
+                                 hold_steps=60).row
+    print({k: (r["reached"], r["settled"], r["hold_max_abs_error_m"]) for k, r in rows.items()})
+    assert all(r["reached"] for r in rows.values())
+    assert rows["kf"]["hold_max_abs_error_m"] < 0.5 * rows["raw"]["hold_max_abs_error_m"]
+    # the offset-free MPC holds V once its estimate is inside: the coin stays put
+    assert rows["offset-free"]["settled"] and not rows["raw"]["settled"]

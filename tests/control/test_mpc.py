@@ -313,3 +313,24 @@ def test_mpc_drives_a_surrogate_plant_to_the_target(coulomb, infer, engine):
         assert 0 < len(log) < env.steps and [r["iteration"] for r in log] == list(range(1, len(log) + 1))
         est = policy.inferred()
         assert all(est[f] != policy.config.inference.initial[f] for f in est)
+
+
+def test_the_offset_free_mpc_settles_at_every_setpoint_of_push_push_pull_back(coulomb, sweep):
+    """The multi-setpoint task on the fixture's surrogate (true φ, no noise), scaled to its
+    0.65 mm of travel: push to −0.2 mm, on to −0.4 mm, pull back to −0.3 mm. Each setpoint is
+    reached and held inside ±0.01 mm for the whole hold; the pull back needs V to come down
+    (the release drags the coin toward the clamp). Broken once: with V kept from falling
+    (the MPC's lower bound on ΔV at 0) the third setpoint is never reached."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.2e-3, terminate_on_success=False, max_steps=3000)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False), phi=plant.truth)
+    ep = run_episode(env, policy, seed=0, step_limit=800, hold_steps=100, setpoints_m=(-0.2e-3, -0.4e-3, -0.3e-3))
+    row = ep.row
+    assert (row["setpoints_reached"], row["setpoints_settled"]) == (3, 3), row
+    assert row["reached"] and row["settled"] and row["overshoot_m"] < 1e-5
+    assert abs(row["final_x_m"] + 0.3e-3) < 1e-5
+    assert ep.V_V[-1] < ep.V_V.max() - 10          # the pull back brought the voltage down
