@@ -10,7 +10,7 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -64,6 +64,13 @@ bench-control: setup ## ms per MPC step: our box-iLQR vs mpc.pytorch (installed 
 		|| echo "mpc.pytorch could not be installed: the bench times ours only"
 	$(PY) bench/bench_control.py --data $(DATA) --mpc-path $(MPC_PYTORCH) --out $(OUT)/bench_control \
 		--target-mm $(BENCH_TARGET_MM)
+
+FEM_PLANTS ?= C3
+bench-control-fem: setup ## one MPC episode on the FEM plant per setup in FEM_PLANTS: ms per FEM step and per plan, wall time per episode (needs $(DATA))
+	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+		--model f-coulomb --epochs 300 --out $(MODELS)/fa
+	$(PY) bench/bench_control_fem.py --plants $(FEM_PLANTS) --mpc-model $(MODELS)/fa --data $(DATA) \
+		--out $(OUT)/bench_control_fem
 
 MODELS ?= $(OUT)/models
 NOISE ?= 0,1e-5,1e-4,1e-3

@@ -28,9 +28,10 @@ that trusts it overshoots or stops short. A :class:`~deapull.control.filters.Bia
 estimates that factor, g, with the position (x' = x + (1 + g) Δ, Δ the model's step), and
 the plan aims the model at x̂ + (x^T − x̂)/(1 + g): the model's travel that the plant turns
 into the remaining distance. Once the estimate is inside ``hold_band`` × tolerance of the
-target the policy holds V (ΔV = 0): at constant V static friction holds the coin, so
-holding is what settles it, and the MPC's own small corrections on a noisy estimate are
-what would move it out. Past the target the plan may bring V down (the release pulls the
+target the policy holds V (ΔV = 0) until the estimate leaves the tolerance by more than
+its own standard deviation: at constant V static friction holds the coin, so holding is
+what settles it, and the MPC's own small corrections on a noisy estimate are what would
+move it out. Past the target the plan may bring V down (the release pulls the
 coin back toward the clamp).
 
 **Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
@@ -103,13 +104,18 @@ class MPCConfig:
     bias_process_fraction : float
         The bias filter's κ: the model's error per moving step that g does not explain.
     hold_band : float
-        Hold V while the estimate is within this fraction of the tolerance, plus ``hold_stds``
-        of its own standard deviations, of the target (0: never hold; the MPC alone
-        decides); outside, the plan aims at the near edge of that region.
+        Start holding V once the estimate is within this fraction of the tolerance of the
+        target (0: never hold; the MPC alone decides).
     hold_stds : float
+        Go on holding while the estimate stays within the tolerance plus this many of its
+        own standard deviations (a hysteresis: noise alone does not end the hold).
     creep_V : float
         Outside the hold region the smallest |ΔV| per step (V): the heuristic's 0.5 V, a
         rate that still drags the coin; smaller planned steps are raised to it.
+    approach_m : float
+        Within this distance (m) of the target |ΔV| is limited to ΔV_max × distance /
+        ``approach_m`` (not below ``creep_V``), so the coin arrives slowly and does not coast
+        past (0: no limit).
     """
 
     horizon: int = 20
@@ -128,6 +134,7 @@ class MPCConfig:
     hold_band: float = 0.5
     hold_stds: float = 1.0
     creep_V: float = 0.5
+    approach_m: float = 0.0
 
     def __post_init__(self):
         if self.filter not in FILTERS:
@@ -197,6 +204,7 @@ class MPCPolicy(Policy):
         self.native = callable(getattr(self.dynamics, "solve", None))
         self.cost = self._cost(self.target_m)
         self.plan = None
+        self.holding = False
         self.previous = None          # (x, u, V) estimate of the previous step
         self.solve_ms, self.inference_ms = [], []
 
@@ -246,7 +254,7 @@ class MPCPolicy(Policy):
         x, V = self.spec.position_of(obs), float(info["V_V"])
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
-            self.target_m, self.plan = target, None
+            self.target_m, self.plan, self.holding = target, None, False
         if cfg.infer:
             start = time.perf_counter()
             self.inference.observe(x, V)
@@ -259,19 +267,21 @@ class MPCPolicy(Policy):
         xi0 = self.dynamics.state(x, u, V)
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
-        # hold while the target is within the band plus the estimate's own uncertainty: at
-        # constant V static friction holds the coin and the estimate's std shrinks as the
-        # observations average; outside, aim at the near edge of that region (creep in)
-        margin = cfg.hold_band * self.tolerance_m + cfg.hold_stds * self.estimate_std_m
-        if cfg.hold_band > 0 and abs(x - self.target_m) <= margin:
+        # hold (hysteresis): start once the estimate is inside the band, and go on while it stays
+        # within the tolerance plus its own uncertainty; at constant V static friction holds
+        # the coin and the estimate's std shrinks as the observations average
+        error = abs(x - self.target_m)
+        if cfg.hold_band > 0:
+            if self.holding:
+                self.holding = error <= self.tolerance_m + cfg.hold_stds * self.estimate_std_m
+            else:
+                self.holding = error < cfg.hold_band * self.tolerance_m
+        if self.holding:
             self.plan = torch.zeros(1, T, 1, dtype=torch.float64)
             self.solve_ms.append(1e3 * (time.perf_counter() - start))
             return 0.0
-        aim = self.target_m
-        if cfg.hold_band > 0:
-            aim += math.copysign(cfg.hold_stds * self.estimate_std_m, x - self.target_m)
         # the model's travel that the plant turns into the remaining distance (1 + g) Δ
-        model_target = x + (aim - x) / (1.0 + self.gain_error)
+        model_target = x + (self.target_m - x) / (1.0 + self.gain_error)
         self.cost = self._cost(model_target)
         tolerance = self.tolerance_m / (1.0 + self.gain_error)
         out_of_reach = False
@@ -288,6 +298,11 @@ class MPCPolicy(Policy):
             self.plan = sol.u[int(sol.cost.argmin())].unsqueeze(0)
         self.solve_ms.append(1e3 * (time.perf_counter() - start))
         dV = float(self.plan[0, 0, 0]) * self.dv_max_V
+        if cfg.approach_m > 0:
+            # slow down near the target: the coin's coast after V stops rising grows with its
+            # speed, which f_a (quasi-static tip) does not model
+            limit = max(cfg.creep_V, self.dv_max_V * abs(x - self.target_m) / cfg.approach_m)
+            dV = max(-limit, min(limit, dV))
         if cfg.hold_band > 0 and 0 < abs(dV) < cfg.creep_V:
             # outside the hold region a step too small to drag the coin (its slip rate under
             # the friction's regularisation, docs/control.md) would only stall: creep instead

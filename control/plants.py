@@ -145,7 +145,7 @@ class FEMPlant:
             raise InputError(f"scene {scene.scene.name!r} has no [coin]: the FEM plant needs one")
         from mpi4py import MPI  # lazy: dolfinx and MPI load only when a FEM plant is built
 
-        from deapull.fem_solver.simulation import Simulation
+        from deapull.fem_solver.simulation import Simulation  # lazy: as above
         self.scene, self.name, self.dt = scene, name, float(dt)
         self.comm = MPI.COMM_SELF
         if work_dir is None:
@@ -159,7 +159,7 @@ class FEMPlant:
         self.last_record = None
 
     def reset(self, seed: int | None = None) -> np.ndarray:
-        from deapull.fem_solver.stepping import SolveFailed
+        from deapull.fem_solver.stepping import SolveFailed  # lazy: dolfinx loads only with a FEM plant
         self.stepper = self.simulation.stepper(progress=False)
         try:
             return self._keep(self.stepper.start(0.0))
@@ -167,7 +167,7 @@ class FEMPlant:
             raise PlantFailed(f"{self.name}: placement failed: {err}") from err
 
     def step(self, V: float) -> np.ndarray:
-        from deapull.fem_solver.stepping import SolveFailed
+        from deapull.fem_solver.stepping import SolveFailed  # lazy: as in reset
         if self.stepper is None:
             raise RuntimeError(f"{self.name}: call reset() before step()")
         V = _check_voltage(V, self.name)

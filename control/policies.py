@@ -192,7 +192,7 @@ class SACPolicy(Policy):
     @classmethod
     def load(cls, folder: str | Path) -> "SACPolicy":
         """A policy saved by :func:`train_sac` (``sac.zip`` + ``sac.json``)."""
-        from stable_baselines3 import SAC
+        from stable_baselines3 import SAC  # lazy: stable-baselines3 (~1 s) loads only for SAC
         folder = Path(folder)
         for name in (SAC_FILE, SAC_META):
             if not (folder / name).is_file():
@@ -235,7 +235,7 @@ def train_sac(env, out_dir: str | Path, timesteps: int, seed: int = 0, learning_
     SACPolicy
         The trained policy (also saved: ``sac.zip``, ``sac.json``).
     """
-    import torch
+    import torch  # lazy: the PD and the heuristic need neither torch nor stable-baselines3
     from stable_baselines3 import SAC
     from stable_baselines3.common.monitor import Monitor
     if timesteps < 1:

@@ -171,7 +171,7 @@ def _cell(row: dict, key: str, scale: float) -> str:
 
 def plot_boxes(curves: dict, kinds, sets, path: Path) -> Path:
     """Box plots of |x error| over all rollout steps, grouped by set (paper Fig. 6)."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a figure is drawn
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(2.5 + 1.4 * len(sets), 4.2))
@@ -199,7 +199,7 @@ def plot_boxes(curves: dict, kinds, sets, path: Path) -> Path:
 
 def plot_rollouts(curves: dict, kinds, sets, path: Path) -> Path:
     """x(t) of the FEM and of each model on each set's test setup."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a figure is drawn
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     cols = min(3, len(sets))

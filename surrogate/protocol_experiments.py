@@ -304,7 +304,7 @@ def format_markdown(summary: list[dict], rows: list[dict], kinds, design: Design
 def plot(rows: list[dict], kinds, design: Design, path: Path) -> Path | None:
     """x(t) of the FEM and of each model, one run per protocol: the first test coin's, else the
     first coin's that has it."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a figure is drawn
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     coin = design.test_coins[0] if design.test_coins else design.train_coins[0]

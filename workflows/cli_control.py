@@ -23,7 +23,8 @@ def cmd_control(args) -> int:
         max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm,
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
-        mpc_oracle=args.mpc_oracle, phi_prior=args.phi_prior, infer_optimizer=args.infer_optimizer,
+        mpc_oracle=args.mpc_oracle, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
+        infer_optimizer=args.infer_optimizer,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress)
     import torch  # lazy: as above
@@ -80,6 +81,9 @@ def register(sub) -> None:
                    help="the MPC's model f_a, f-coulomb or f trained on C3..C8 (default out/models/fa)")
     p.add_argument("--mpc-cost", default="scaled",
                    help="the MPC's cost: scaled (default) or paper (1e-3 V^2 beside (x - x^T)^2 in SI)")
+    p.add_argument("--mpc-approach-mm", type=float, default=0.0,
+                   help="the offset-free MPC slows down within this distance of the target (mm): |dV| <= dV_max * "
+                        "distance / approach, so the coin does not coast past (default 0: no limit)")
     p.add_argument("--mpc-oracle", action="store_true",
                    help="the MPC plans with the plant's true coin instead of inferring it online")
     p.add_argument("--phi-prior", default="none",

@@ -58,6 +58,7 @@ COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max
            "hold_max_abs_error_m",
            "final_abs_error_m", "final_x_m", "final_V_V", "steps_run",
            "ms_per_iteration", "solve_ms_per_iteration", "inference_ms_per_iteration", "plant_ms_per_step",
+           "episode_wall_s",
            "training_steps", "status")
 #: per-iteration wall times (lists of ms) that a policy may keep: the MPC's plan and inference
 TIMED = ("solve_ms", "inference_ms")
@@ -105,6 +106,7 @@ class ControlConfig:
     mpc_model: str = "out/models/fa"
     mpc_cost: str = "scaled"
     mpc_oracle: bool = False
+    mpc_approach_m: float = 0.0
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
     sac_dir: str = "out/models/sac{n}"
@@ -197,6 +199,8 @@ def check(config: ControlConfig) -> None:
         from deapull.control.dynamics import COSTS
         if config.mpc_cost not in COSTS:
             raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
+        if not (math.isfinite(config.mpc_approach_m) and config.mpc_approach_m >= 0):
+            raise InputError(f"--mpc-approach-mm {1e3 * config.mpc_approach_m!r}: must be a finite number >= 0 (mm)")
         if config.phi_prior not in PHI_PRIORS:
             raise InputError(f"--phi-prior {config.phi_prior!r}: choose one of {', '.join(PHI_PRIORS)}")
         _require_model(Path(config.mpc_model), "--mpc-model")
@@ -279,6 +283,7 @@ def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
     plain = filter == "kf"
     settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle, filter=filter,
                          offset_free=not plain, hold_band=0.0 if plain else MPCConfig.hold_band,
+                         approach_m=0.0 if plain else config.mpc_approach_m,
                          inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
     return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
 
@@ -311,6 +316,7 @@ def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=No
     from deapull.control.env import policy_view
     from deapull.control.plants import PlantFailed
     setpoints = tuple(float(t) for t in (setpoints_m or (env.target_m,)))
+    started = time.perf_counter()
     obs, info = env.reset(seed=seed)
     env.set_target(setpoints[0])
     info = {**info, "target_m": setpoints[0]}
@@ -375,6 +381,7 @@ def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=No
            "overshoot_m": max(ph["overshoot_m"] for ph in phases),
            "final_abs_error_m": abs(xs[-1] - last["target_m"]), "final_x_m": xs[-1], "final_V_V": Vs[-1],
            "steps_run": n, "ms_per_iteration": 1e3 * act_s / max(n, 1), "plant_ms_per_step": 1e3 * plant_s / max(n, 1),
+           "episode_wall_s": time.perf_counter() - started,
            "status": status, "training_steps": getattr(policy, "training_steps", None), **_timings(policy),
            **{f"true_{f}": truth.get(f) for f in PHI_FIELDS},
            **{f"inferred_{f}": estimate.get(f) for f in PHI_FIELDS}}

@@ -102,8 +102,11 @@ def test_pd_with_a_filter_holds_the_target_better_under_noise():
 
 
 def test_mpc_with_a_filter_holds_the_target_closer_under_noise(coulomb_and_plant):
-    """The MPC planning from the Kalman estimate (f_a's own prediction) instead of x̃ keeps
-    the coin nearer the target once there (fixture surrogate, σ = 0.1 mm, true φ)."""
+    """The MPC planning from a Kalman estimate (f_a's own prediction) instead of x̃ keeps the
+    coin nearer the target once there, and the offset-free MPC, which holds V once its
+    estimate is inside the window, is the only one that settles (fixture surrogate,
+    σ = 0.1 mm, true φ, six seeds). Broken once: with the hold off (hold_band 0) the
+    offset-free MPC settled no more often than the kf one."""
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.workflows.control import run_episode
@@ -112,14 +115,16 @@ def test_mpc_with_a_filter_holds_the_target_closer_under_noise(coulomb_and_plant
     model, plant = coulomb_and_plant
     rows = {}
     for name, f, offset_free in (("raw", "none", False), ("kf", "kf", False), ("offset-free", "none", True)):
-        env = CoinPushEnv(plant, target_m=FIXTURE_TARGET_M, terminate_on_success=False, max_steps=400,
-                          noise_std_m=1e-4)
         config = MPCConfig(horizon=10, iterations=4, infer=False, filter=f, offset_free=offset_free,
                            hold_band=0.5 if offset_free else 0.0)
-        rows[name] = run_episode(env, MPCPolicy(model, config, phi=plant.truth), seed=0, step_limit=300,
-                                 hold_steps=60).row
-    print({k: (r["reached"], r["settled"], r["hold_max_abs_error_m"]) for k, r in rows.items()})
-    assert all(r["reached"] for r in rows.values())
-    assert rows["kf"]["hold_max_abs_error_m"] < 0.5 * rows["raw"]["hold_max_abs_error_m"]
-    # the offset-free MPC holds V once its estimate is inside: the coin stays put
-    assert rows["offset-free"]["settled"] and not rows["raw"]["settled"]
+        for seed in range(6):
+            env = CoinPushEnv(plant, target_m=FIXTURE_TARGET_M, terminate_on_success=False, max_steps=800,
+                              noise_std_m=1e-4)
+            rows.setdefault(name, []).append(run_episode(env, MPCPolicy(model, config, phi=plant.truth), seed=seed,
+                                                         step_limit=600, hold_steps=100).row)
+    settled = {k: sum(r["settled"] for r in v) for k, v in rows.items()}
+    hold = {k: np.median([r["hold_max_abs_error_m"] for r in v if r["reached"]]) for k, v in rows.items()}
+    print(settled, hold)
+    assert all(r["reached"] for r in rows["raw"] + rows["kf"])
+    assert hold["kf"] < 0.5 * hold["raw"]
+    assert settled["offset-free"] > settled["kf"] >= settled["raw"]

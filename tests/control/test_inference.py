@@ -1,7 +1,7 @@
 """Online inference of φ (deapull.control.inference) on a plant made with a known φ: the
 plant is the tip-contact model trained on the committed test sweep, simulating a coin of
-known (m_c, μ_b, μ_t); the inference starts from the paper's m_c = 0.001 g, μ_b = 0.2 and
-the prior μ_t = 0.5 − here off by 10 % from the truth as well."""
+known (m_c, μ_b, μ_t); the inference starts from the paper's m_c = 0.001 g and from μ_b = 0.15,
+μ_t = 0.4, below every setup's truth."""
 from __future__ import annotations
 
 import math
@@ -197,3 +197,15 @@ def test_adam_takes_the_prior_too(coulomb, observations):
     plain = run(coulomb, observations, InferenceConfig(optimizer="adam"), extra_updates=400).estimate()
     assert all(abs(est[f] / narrow[f][0] - 1) < 0.05 for f in ("mu_b", "mu_t")), est
     assert est["mass_kg"] > 10 * plain["mass_kg"], (est, plain)
+
+
+def test_no_start_value_equals_a_setups_truth():
+    """The inference must earn its estimate: its start differs from every coin_pull setup's
+    μ_b and μ_t (the paper's μ_b = 0.2 is C1–C4's own value) and its mass from every coin's."""
+    from deapull import scene as scenes
+    from deapull.control.inference import INITIAL
+    for setup in scenes.setups_of("coin_pull"):
+        coin = scenes.load("coin_pull", setup=setup).coin
+        assert INITIAL["mu_b"] != pytest.approx(coin.mu_b, rel=0.1), setup
+        assert INITIAL["mu_t"] != pytest.approx(coin.mu_t, rel=0.1), setup
+        assert INITIAL["mass_kg"] < 0.01 * 1.3e-3
