@@ -317,11 +317,20 @@ def test_pictures_and_animation_from_field_output(tmp_path):
     with Image.open(out / "img" / "dea_C3.gif") as gif:
         assert gif.n_frames == 5 and gif.size[0] > 100
     a, b = (np.asarray(Image.open(out / "img" / f"dea_{s}.png").convert("L"), float) for s in ("rest", "kinetic"))
-    assert np.abs(a - b).mean() > 1.0                  # the DEA moved between the stages
+    h, w = min(a.shape[0], b.shape[0]), min(a.shape[1], b.shape[1])     # their colour bars' labels differ
+    assert np.abs(a[:h, :w] - b[:h, :w]).mean() > 1.0    # the DEA moved between the stages
     # the synthetic tip sinks to y = -0.75 mm at t = 1: the page says so
     assert "reach y = -0.75 mm, below the ground" in (out / "report.md").read_text()
     page = _parse(out / "index.html")
-    assert {"img/dea_rest.png", "img/dea_static.png", "img/dea_kinetic.png", "img/dea_C3.gif"} <= set(page.imgs)
+    assert {"img/dea_rest.png", "img/dea_static.png", "img/dea_kinetic.png", "img/dea_C3.gif",
+            "img/section_static.png", "img/section_kinetic.png"} <= set(page.imgs)
+    for stage in ("static", "kinetic"):
+        _png_ok(out / "img" / f"section_{stage}.png")
+    # the field file ships beside the page for ParaView, linked (broken once: the copy left out)
+    for name in ("C3_fields.xdmf", "C3_fields.h5"):
+        assert (out / "fields" / name).read_bytes() == (fields / name).read_bytes()
+        assert f'href="fields/{name}"' in (out / "index.html").read_text()
+    assert "ParaView" in (out / "report.md").read_text()
 
 
 def test_stages_pick_the_frame_before_sliding(tmp_path):
@@ -456,6 +465,11 @@ def test_pictures_from_a_real_solve(tmp_path):
     assert s3.mirrored and len(s3.polys) == 4 * 2 * (4 * 2 + 4 * 2 + 2 * 2)
     png = pictures.stage_picture(s3, "kinetic", len(s3.fields.times) - 1, tmp_path / "k.png")
     _png_ok(png)
+    from deapull.workflows.report import pictures_contact
+    last = len(s3.fields.times) - 1
+    # the picture's count of the coin's active quadrature points is the solver's own
+    assert pictures_contact.coin_contact(s3, last).n == round(s3.at("n_contact", last))
+    _png_ok(pictures_contact.section_picture(s3, "kinetic", last, tmp_path / "s.png"))
 
 
 def test_a_diverged_model_is_never_better_or_faster_and_the_counts_come_from_the_rows(tmp_path):

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 
 from deapull import dataset, scene as scenes
 from deapull.paper import (ABAQUS_COIN_ELEMENTS, ABAQUS_ELEMENTS_PER_MEMBRANE, ABAQUS_POINTS, ABAQUS_S,
                            CONTACT_LOST_V, DATASET_POINTS, POISSON_RATIO, THRESHOLD_M, YOUNGS_MODULUS_PA)
-from deapull.workflows.report import pictures
+from deapull.io import atomic_write
+from deapull.workflows.report import pictures, pictures_contact
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.inputs import SCENE, SETUPS, fields_run
 from deapull.workflows.report.plots import plot_sweep
@@ -86,16 +88,22 @@ def section_pictures(rep: Report) -> Section:
     rep.source(fields_run(xdmf), sec)
     stages = pictures.stage_frames(s3)
     sec.p(f"Setup {s3.setup}, rendered off-screen from the solver's field output ({len(s3.fields.times)} frames, "
-          "XDMF + HDF5) with matplotlib; colour: displacement magnitude |u| from the reference (flat, "
-          "unloaded) configuration. The grey disc is the rigid coin, moved by its x(t) from the run's dataset. "
-          "The DEA (20 mm wide) is wider than the coin (10 mm): its corners curl down beside the coin.")
+          "XDMF + HDF5) with matplotlib. Colour: the **actuation** |u(t) − u(rest)|, the displacement since the "
+          "rest state (the first frame: the DEA settled on the coin under gravity at V = 0), so the gravity sag is "
+          "left out; the rest picture itself shows that sag |u(rest)| on its own scale. The grey body is the "
+          "rigid coin (its rounded rim included), moved by its x(t) from the run's dataset; the hatched band the "
+          "table. In the side views the DEA's far half is drawn behind the coin and its near half in front, as in "
+          "space. The DEA (20 mm wide) is wider than the coin (10 mm): its corners curl down beside the coin.")
     for key, title in pictures.STAGES:
         name = f"dea_{key}.png"
         pictures.stage_picture(s3, key, stages[key], rep.img / name)
-        sec.img(f"img/{name}", f"{s3.setup}, {title}: side view (left) and 3/4 view (right).")
+        sec.img(f"img/{name}", f"{s3.setup}, {title}: side view (left) and 3/4 view, the DEA see-through (right).")
+    _contact_pictures(rep, sec, s3, stages)
     name = f"dea_{s3.setup}.gif"
     pictures.animation(s3, rep.img / name, frames=frames, progress=progress)
-    sec.img(f"img/{name}", f"Animation of {s3.setup}: the 1 s ramp, 3/4 view (GIF).")
+    sec.img(f"img/{name}", f"Animation of {s3.setup}: the whole ramp, side view with the coin and the table (left), "
+            "the coin's x(t) with a marker at the frame's time (right) (GIF).")
+    _ship_fields(rep, sec, xdmf)
     lowest = [float((s3.points + s3.displacement(i))[:, 1].min()) for i in range(len(s3.fields.times))]
     below = [i for i, y in enumerate(lowest) if y < 0.0]
     if below:
@@ -112,6 +120,36 @@ def section_pictures(rep: Report) -> Section:
           f"{ABAQUS_ELEMENTS_PER_MEMBRANE} elements per membrane and {ABAQUS_COIN_ELEMENTS} for the coin, ours is in "
           "the model table.")
     return sec
+
+
+def _contact_pictures(rep: Report, sec: Section, s3, stages: dict) -> None:
+    """The section at z = 0 with the contact patch, at the static and the kinetic stage."""
+    if s3.coin is None or s3.scene is None:
+        return
+    for key, title in pictures.STAGES[1:]:
+        name = f"section_{key}.png"
+        pictures_contact.section_picture(s3, key, stages[key], rep.img / name)
+        sec.img(f"img/{name}", f"{s3.setup}, {title}: the section at the symmetry plane z = 0 (left) and the "
+                "contact seen from above (right).")
+    sec.p("The contact pressure is recomputed from the field file (the dataset records only the number of "
+          "active points and the traction-weighted centre): the deformed underside is sampled at the contact "
+          "integral's own quadrature points, each point's depth δ in the coin (cylinder with the rounded rim) or "
+          "below the table gives p_n = k_n δ with the scene's penalty. The count of the coin's points is printed "
+          "beside the solver's `n_contact`, the blue × is the solver's `contact_x`, `contact_z`.")
+
+
+def _ship_fields(rep: Report, sec: Section, xdmf) -> None:
+    """Copy the field file (XDMF + its HDF5) beside the page and link it."""
+    folder = rep.out / "fields"
+    names = []
+    for src in (xdmf, xdmf.with_suffix(".h5")):
+        data = src.read_bytes()
+        atomic_write(folder / src.name, lambda p, d=data: Path(p).write_bytes(d), suffix=src.suffix)
+        names.append(src.name)
+    sec.p(f"The run's displacement field for ParaView: [fields/{names[0]}](fields/{names[0]}) with its data "
+          f"[fields/{names[1]}](fields/{names[1]}) (keep the two side by side); in ParaView, File → Open the "
+          "`.xdmf` with the *Xdmf3 Reader (Top Level Partition)*, Apply, then Filters → Warp By Vector "
+          "(displacement) and play the time steps.")
 
 
 def _crossing(V, g) -> float | None:
