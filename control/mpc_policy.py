@@ -50,7 +50,7 @@ import torch
 from deapull.control import mpc, native
 from deapull.control.dynamics import COSTS, U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics, coin_cost
 from deapull.control.filters import FILTERS, BiasKalman, ModelKalman
-from deapull.control.inference import InferenceConfig, OnlineInference
+from deapull.control.inference import InferenceConfig, OnlineInference, identifiability
 from deapull.control.policies import Policy
 from deapull.errors import InputError
 from deapull.surrogate.phi import Phi
@@ -116,6 +116,9 @@ class MPCConfig:
         Within this distance (m) of the target |ΔV| is limited to ΔV_max × distance /
         ``approach_m`` (not below ``creep_V``), so the coin arrives slowly and does not coast
         past (0: no limit).
+    crlb_every : int
+        Report the inferred fields' Cramér–Rao bounds every this many transitions (0: never;
+        :meth:`MPCPolicy.inferred`).
     """
 
     horizon: int = 20
@@ -135,6 +138,7 @@ class MPCConfig:
     hold_stds: float = 1.0
     creep_V: float = 0.5
     approach_m: float = 0.0
+    crlb_every: int = 100
 
     def __post_init__(self):
         if self.filter not in FILTERS:
@@ -199,6 +203,7 @@ class MPCPolicy(Policy):
             if self.inference is None or self.inference.dt != self.dt or self.inference.config != settings:
                 self.inference = OnlineInference(self.model, settings, self.dt)
             self.inference.reset()
+        self._crlb = {f"crlb_{f}": math.nan for f in self.inference.fields} if cfg.infer else {}
         phi = self.inference.phi if cfg.infer else self.fixed_phi
         self.dynamics = make_dynamics(self.model, phi, self.dt, self.dv_max_V, self.v_max_V, cfg.engine)
         self.native = callable(getattr(self.dynamics, "solve", None))
@@ -209,7 +214,17 @@ class MPCPolicy(Policy):
         self.solve_ms, self.inference_ms = [], []
 
     def inferred(self) -> dict:
-        return self.inference.estimate() if self.inference is not None else {}
+        """The current φ and, every ``crlb_every`` steps once the coin has moved, each inferred
+        field's Cramér–Rao bound on its relative error (``crlb_<field>``, from the buffer's
+        Fisher information at the current φ and the observation noise; inf where the data
+        do not identify it): what the data can say, beside what the estimate says."""
+        if self.inference is None:
+            return {}
+        every = self.config.crlb_every
+        if every and self.inference.moved and len(self.inference.buffer) % every == 0:
+            info = identifiability(self.inference, noise_std_m=max(self.spec.noise_std_m, 1e-6))
+            self._crlb = {f"crlb_{f}": v for f, v in info["crlb_relative"].items()}
+        return {**self.inference.estimate(), **self._crlb}
 
     def _cost(self, model_target_m: float):
         cfg = self.config

@@ -16,8 +16,8 @@ Outputs in ``--out`` (every file written atomically):
   final error and time per iteration, beside the paper's numbers (:data:`PAPER`);
 * ``position_<plant>_noise<σ>.png`` — the paper's Fig. 6: mean coin position per policy
   with its 25–75 % band over the episodes; ``voltage_<plant>_noise<σ>.png`` — V(t);
-  ``inferred_<plant>_noise<σ>.png`` — inferred φ per iteration beside the true value
-  (policies that infer);
+  ``inferred_<plant>_noise<σ>.png`` — inferred φ per iteration beside the true value, and each
+  inferred field's Cramér–Rao bound on its relative error (``crlb_*``; policies that infer);
 * ``traces.npz`` — every episode's x, V (and inferred φ) per step; ``run.json`` — the
   configuration, versions and commit.
 """
@@ -384,7 +384,8 @@ def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=No
            "episode_wall_s": time.perf_counter() - started,
            "status": status, "training_steps": getattr(policy, "training_steps", None), **_timings(policy),
            **{f"true_{f}": truth.get(f) for f in PHI_FIELDS},
-           **{f"inferred_{f}": estimate.get(f) for f in PHI_FIELDS}}
+           **{f"inferred_{f}": estimate.get(f) for f in PHI_FIELDS},
+           **{f"crlb_{f}": estimate.get(f"crlb_{f}") for f in PHI_FIELDS}}
     return Episode(row, np.array(xs), np.array(Vs), {k: np.array(v) for k, v in inferred.items()})
 
 
@@ -446,7 +447,7 @@ def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
 
 def write_outputs(config: ControlConfig, episodes: list[Episode]) -> None:
     rows = [e.row for e in episodes]
-    columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred") for f in PHI_FIELDS]
+    columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred", "crlb") for f in PHI_FIELDS]
     write_csv(config.out / "control.csv", rows, columns)
     write_text(config.out / "table.md", summary_table(rows) + "\n")
     traces = {}
@@ -538,13 +539,17 @@ def plot_all(config: ControlConfig, episodes: list[Episode]) -> None:
             truth = next(iter(inferring.values()))[0].row
             for ax, f in zip(axes[:, 0], fields):
                 for policy, eps in inferring.items():
-                    values = _padded([e.inferred[f] for e in eps if f in e.inferred])
+                    values = _padded([e.inferred[f] for e in eps if f in e.inferred]).astype(float)
+                    values[~np.isfinite(values)] = np.nan          # a bound not yet computed, or inf
                     ax.plot(values.mean(0), label=f"{policy} (mean)")
                     lo, hi = np.percentile(values, [25, 75], axis=0)
                     ax.fill_between(np.arange(values.shape[1]), lo, hi, alpha=0.25)
                 true = truth.get(f"true_{f}")
                 if true is not None and math.isfinite(true):
                     ax.axhline(true, color="k", ls="--", lw=0.8, label="true")
+                if f.startswith("crlb_"):       # the Cramér–Rao bound on the relative error
+                    ax.set_yscale("log")
+                    ax.axhline(0.1, color="r", ls=":", lw=0.8, label="10 % (the paper's inference error)")
                 ax.set_ylabel(f)
                 ax.legend(fontsize=8)
             axes[-1, 0].set_xlabel("iteration")

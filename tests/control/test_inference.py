@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -209,3 +210,27 @@ def test_no_start_value_equals_a_setups_truth():
         assert INITIAL["mu_b"] != pytest.approx(coin.mu_b, rel=0.1), setup
         assert INITIAL["mu_t"] != pytest.approx(coin.mu_t, rel=0.1), setup
         assert INITIAL["mass_kg"] < 0.01 * 1.3e-3
+
+
+
+def test_the_mpc_reports_each_fields_cramer_rao_bound_as_it_goes(coulomb, sweep):
+    """An inferring MPC reports, beside φ, each inferred field's Cramér–Rao bound on its
+    relative error: NaN before the coin has moved, then finite, and ten times larger at ten
+    times the noise on the same kind of episode (the Fisher information scales with 1/σ²).
+    Broken once: the bound computed with the noise fixed at 1e-6 (the test then fails)."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    bounds = {}
+    for sigma in (1e-6, 1e-5):
+        env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=400, noise_std_m=sigma)
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, crlb_every=50))
+        ep = run_episode(env, policy, seed=0, step_limit=300, hold_steps=0)
+        crlb = ep.inferred["crlb_mu_b"]
+        assert math.isnan(crlb[0]) and np.isfinite(crlb[-1])
+        bounds[sigma] = {f: ep.inferred[f"crlb_{f}"][-1] for f in policy.inference.fields}
+        assert ep.row["crlb_mu_b"] == crlb[-1]
+    for f in bounds[1e-6]:
+        assert bounds[1e-5][f] > 3 * bounds[1e-6][f], (f, bounds)
