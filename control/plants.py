@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import math
 import tempfile
+import time
 from pathlib import Path
 from typing import Protocol
 
@@ -137,7 +138,11 @@ class FEMPlant:
 
     The mesh and the coin's mass are made once; every ``reset`` builds a fresh problem and
     :class:`~deapull.fem_solver.stepping.Stepper` and places the DEA on the coin at 0 V
-    (``start(0)``). A step that the FEM cannot solve raises :class:`PlantFailed`.
+    (``start(0)``). A step that the FEM cannot solve raises :class:`PlantFailed`. The
+    episode's accepted FEM records are kept (:attr:`records`), and :meth:`save` writes them
+    as a dataset of the FEM's contract: an FEM run under the controller's voltages, which
+    the surrogates train on like any other run (dataset aggregation,
+    :mod:`deapull.workflows.dagger`).
     """
 
     def __init__(self, scene, work_dir: str | Path | None = None, name: str = "fem", dt: float = DT_S):
@@ -154,13 +159,17 @@ class FEMPlant:
         self.simulation = Simulation.from_scene(scene, mesh_dir=Path(work_dir) / "mesh", comm=self.comm)
         self.mesh_summary, self.mass_kg = self.simulation.mesh_summary, self.simulation.mass_kg
         self.truth = Phi(mass_kg=self.mass_kg, mu_b=scene.coin.mu_b, mu_t=scene.coin.mu_t)
-        self.stepper = None
+        self.stepper = self.problem = None
         self.t, self.V = 0.0, 0.0
         self.last_record = None
+        self.records: list = []
+        self._started = 0.0
 
     def reset(self, seed: int | None = None) -> np.ndarray:
         from deapull.fem_solver.stepping import SolveFailed  # lazy: dolfinx loads only with a FEM plant
-        self.stepper = self.simulation.stepper(progress=False)
+        self.problem = self.simulation.problem()
+        self.stepper = self.simulation.stepper(self.problem, progress=False)
+        self.records, self._started = [], time.perf_counter()
         try:
             return self._keep(self.stepper.start(0.0))
         except SolveFailed as err:
@@ -176,8 +185,18 @@ class FEMPlant:
         except SolveFailed as err:
             raise PlantFailed(f"{self.name}: {err}") from err
 
+    def save(self, path: str | Path, name: str) -> Path:
+        """The episode so far as a dataset at ``path`` (run name ``name``; the attributes say
+        the voltages came from a controller)."""
+        from deapull.fem_solver.run import write_run  # lazy: as in reset
+        if len(self.records) < 2:
+            raise RuntimeError(f"{self.name}: no episode to save (reset and step first)")
+        return write_run(path, self.simulation, self.problem, self.stepper, self.records,
+                         time.perf_counter() - self._started, name, protocol="closed loop (deapull control)")
+
     def _keep(self, record) -> np.ndarray:
         self.last_record = record
+        self.records.append(record)
         self.t, self.V = record.t, record.V
         return np.array([record.x, record.u], dtype=np.float64)
 

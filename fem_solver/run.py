@@ -68,7 +68,7 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
     name = name or run_name(scene)
     start = time.perf_counter()
     sim = Simulation.from_scene(scene, mesh_dir=out_dir / "meshes" / name, comm=comm)
-    mass_kg, summary = sim.mass_kg, sim.mesh_summary
+    mass_kg = sim.mass_kg
     problem = sim.problem()
     log.info("%s: %d dofs on %d ranks, coin mass %s", name, problem.num_dofs(), comm.size,
              f"{mass_kg * 1e3:.4f} g" if mass_kg else "-")
@@ -80,6 +80,18 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         if writer is not None:
             writer.close()
     wall = time.perf_counter() - start
+    path = write_run(out_dir / f"{name}.nc", sim, problem, stepper, records, wall, name)
+    log.info("%s: %d points, coin travel %.3f mm, %.1f s -> %s", name, len(records),
+             coin_travel(records) * 1e3, wall, path)
+    return path
+
+
+def write_run(path, sim, problem, stepper, records, wall_s: float, name: str, protocol: str | None = None) -> Path:
+    """Write the accepted ``records`` of a run of ``sim`` as a dataset at ``path`` (rank 0,
+    atomically): the variables of the dataset contract and the attributes that say what was
+    run (scene, mesh, contact, table, solver, versions). ``protocol`` names the voltage input
+    when it is not the scene's own (e.g. a controller's, stepped online by the FEM plant)."""
+    scene, comm, mass_kg, summary = sim.scene, problem.comm, sim.mass_kg, sim.mesh_summary
     attrs = {
         "title": f"deapull FEM run {name}",
         "scene": scene.scene.name, "setup": scene.setup, "scene_toml": scene.to_toml(),
@@ -102,15 +114,13 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         "mesh_cell_type": scene.mesh.cell, "mesh_order": scene.mesh.order, "mesh_level": scene.mesh.level,
         "mesh_min_quality": summary["min_quality_detj_ratio"],
         "coin_volume_rel_error": summary.get("coin_volume_rel_error", ""),
-        "mpi_ranks": comm.size, "git_commit": provenance.git_commit(), "wall_time_total_s": wall,
+        "mpi_ranks": comm.size, "git_commit": provenance.git_commit(), "wall_time_total_s": wall_s,
         "coin_travel_m": coin_travel(records), "coin_motion": coin_motion(records), "steps": len(records),
-        "load_protocol": scene.load.protocol,
+        "load_protocol": protocol or scene.load.protocol,
         **provenance.package_versions(),
     }
-    path = out_dir / f"{name}.nc"
+    path = Path(path)
     if comm.rank == 0:
         dataset.write(dataset.build(as_arrays(records), attrs), path)
     comm.barrier()
-    log.info("%s: %d points, coin travel %.3f mm, %.1f s -> %s", name, len(records),
-             coin_travel(records) * 1e3, wall, path)
     return path

@@ -26,7 +26,8 @@ def cmd_control(args) -> int:
         mpc_oracle=args.mpc_oracle, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
         infer_optimizer=args.infer_optimizer,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
-        scene=args.scene, overrides=args.overrides, progress=not args.no_progress)
+        scene=args.scene, overrides=args.overrides, progress=not args.no_progress,
+        save_fem_runs=None if args.save_fem_runs is None else Path(args.save_fem_runs))
     import torch  # lazy: as above
     torch.set_num_threads(args.threads)
     episodes = control.run(config)
@@ -101,6 +102,54 @@ def register(sub) -> None:
     p.add_argument("--scene", default="coin_pull", help="scene of the setups and of the FEM plant (coin_pull)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one key of the FEM plant's scene (validated like the file); repeatable")
+    p.add_argument("--save-fem-runs", default=None, metavar="DIR",
+                   help="write each FEM plant episode as a dataset DIR/<setup>_<policy>_n<noise>_e<episode>.nc (the "
+                        "FEM's contract; the surrogates train on it: dataset aggregation)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_control)
+    register_dagger(sub)
+
+
+def cmd_dagger(args) -> int:
+    from deapull.workflows import control, dagger  # lazy: torch and gymnasium load only when a run starts
+    from deapull.surrogate.data import parse_setups  # lazy: as above
+    settings = control.ControlConfig(
+        policies=["mpc"], plants=control.parse_plants(args.plant, args.scene), noises=control.parse_noises(args.noise),
+        out=Path(args.out), episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, hold_steps=args.hold,
+        target_m=1e-3 * args.target_mm, data=Path(args.data), phi_prior=args.phi_prior,
+        mpc_approach_m=1e-3 * args.mpc_approach_mm, scene=args.scene, overrides=args.overrides, progress=False)
+    config = dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
+                                 val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
+                                 model=None if args.mpc_model is None else Path(args.mpc_model), seed=args.seed)
+    rows = dagger.run(config)
+    print(dagger.summary_table(rows))
+    print(f"wrote {config.out}/dagger.csv, dagger.md, models/, runs/ and control/")
+    return 0
+
+
+def register_dagger(sub) -> None:
+    """Add ``dagger`` (dataset aggregation of the MPC's model on the FEM plant)."""
+    p = sub.add_parser("dagger", help="dataset aggregation: run the MPC on the FEM plant, add its transitions to "
+                                      "f_a's training data, retrain, repeat until the closed loop stops improving")
+    p.add_argument("--plant", default="fem:C3", help="FEM plant(s), comma-separated (default fem:C3)")
+    p.add_argument("--noise", default="1e-4", help="observation noise std(s) (m; default 1e-4)")
+    p.add_argument("--episodes", type=int, default=1, help="episodes per plant, noise and round (default 1)")
+    p.add_argument("--rounds", type=int, default=3, help="most rounds (default 3)")
+    p.add_argument("--epochs", type=int, default=300, help="training epochs of each f_a (default 300)")
+    p.add_argument("--data", default="data", help="folder of the ramps (<setup>.nc) f_a trains on")
+    p.add_argument("--train", default="C3,C4,C5,C6,C7", help="ramps f_a trains on (default C3..C7)")
+    p.add_argument("--val", default="C8", help="ramp that early-stops every training (default C8)")
+    p.add_argument("--mpc-model", default=None, help="f_a of round 0 (default: trained here on the ramps)")
+    p.add_argument("--mpc-approach-mm", type=float, default=1.0,
+                   help="the MPC's approach limit (mm; default 1.0, see deapull control --help)")
+    p.add_argument("--phi-prior", default="coins", help="the MPC's inference prior: none or coins (default)")
+    p.add_argument("--max-steps", type=int, default=600, help="steps before an episode counts as failed (600)")
+    p.add_argument("--hold", type=int, default=100, help="steps held after the first success (100)")
+    p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position (mm; default -1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--scene", default="coin_pull", help="scene of the FEM plant (coin_pull)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one key of the FEM plant's scene; repeatable")
+    p.set_defaults(func=cmd_dagger)

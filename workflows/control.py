@@ -58,7 +58,7 @@ COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max
            "hold_max_abs_error_m",
            "final_abs_error_m", "final_x_m", "final_V_V", "steps_run",
            "ms_per_iteration", "solve_ms_per_iteration", "inference_ms_per_iteration", "plant_ms_per_step",
-           "episode_wall_s",
+           "episode_wall_s", "fem_run",
            "training_steps", "status")
 #: per-iteration wall times (lists of ms) that a policy may keep: the MPC's plan and inference
 TIMED = ("solve_ms", "inference_ms")
@@ -114,6 +114,8 @@ class ControlConfig:
     scene: str = "coin_pull"
     overrides: list = field(default_factory=list)
     progress: bool = True
+    save_fem_runs: Path | None = None
+    run_tag: str = ""
 
     @property
     def task(self) -> tuple:
@@ -420,10 +422,20 @@ def run(config: ControlConfig) -> list[Episode]:
                         ep = run_episode(env, policy, config.seed + i, config.max_steps, config.hold_steps, bar,
                                          setpoints_m=config.task)
                         ep.row.update(setup=spec.setup, episode=i)
+                        if config.save_fem_runs is not None and spec.kind == "fem" and len(plant.records) > 1:
+                            stem = fem_run_name(config, spec, name_of=name, noise=noise, episode=i)
+                            ep.row["fem_run"] = str(plant.save(Path(config.save_fem_runs) / f"{stem}.nc", stem))
                         episodes.append(ep)
                         bar.update(1)
     write_outputs(config, episodes)
     return episodes
+
+
+def fem_run_name(config: ControlConfig, spec: PlantSpec, name_of: str, noise: float, episode: int) -> str:
+    """File stem of a saved FEM episode (``--save-fem-runs``): setup, tag, policy, noise, episode,
+    e.g. ``C3_r1_mpc_n0.0001_e0`` (a run name the surrogate's training accepts)."""
+    tag = f"_{config.run_tag}" if config.run_tag else ""
+    return f"{spec.setup}{tag}_{re.sub(r'[^A-Za-z0-9]', '-', name_of)}_n{noise:g}_e{episode}"
 
 
 def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
