@@ -119,6 +119,15 @@ class MPCConfig:
     crlb_every : int
         Report the inferred fields' Cramér–Rao bounds every this many transitions (0: never;
         :meth:`MPCPolicy.inferred`).
+    identified_crlb : float
+        With a prior on φ (``inference.prior``), a field is planned with its estimate only
+        once its Cramér–Rao bound on the relative error is below this (0.1: the paper's 10 %
+        inference error); otherwise with the prior's median (:meth:`MPCPolicy._planning_phi`).
+    standoff_stds, standoff_std, max_wait :
+        Stand-off under noise (0: off): while the position estimate's std exceeds
+        ``standoff_std`` × tolerance, aim ``standoff_stds`` stds short of the target and hold
+        V there (at most ``max_wait`` steps per setpoint) while the observations average down;
+        then go on to the target on the model's (gain-corrected) prediction.
     """
 
     horizon: int = 20
@@ -139,6 +148,10 @@ class MPCConfig:
     creep_V: float = 0.5
     approach_m: float = 0.0
     crlb_every: int = 100
+    identified_crlb: float = 0.1
+    standoff_stds: float = 0.0
+    standoff_std: float = 0.3
+    max_wait: int = 1500
 
     def __post_init__(self):
         if self.filter not in FILTERS:
@@ -204,27 +217,81 @@ class MPCPolicy(Policy):
                 self.inference = OnlineInference(self.model, settings, self.dt)
             self.inference.reset()
         self._crlb = {f"crlb_{f}": math.nan for f in self.inference.fields} if cfg.infer else {}
-        phi = self.inference.phi if cfg.infer else self.fixed_phi
+        phi = self._planning_phi() if cfg.infer else self.fixed_phi
         self.dynamics = make_dynamics(self.model, phi, self.dt, self.dv_max_V, self.v_max_V, cfg.engine)
         self.native = callable(getattr(self.dynamics, "solve", None))
         self.cost = self._cost(self.target_m)
         self.plan = None
         self.holding = False
+        self.start_x, self.waited = 0.0, 0
         self.previous = None          # (x, u, V) estimate of the previous step
         self.solve_ms, self.inference_ms = [], []
 
     def inferred(self) -> dict:
-        """The current φ and, every ``crlb_every`` steps once the coin has moved, each inferred
-        field's Cramér–Rao bound on its relative error (``crlb_<field>``, from the buffer's
-        Fisher information at the current φ and the observation noise; inf where the data
-        do not identify it): what the data can say, beside what the estimate says."""
+        """The current φ and each inferred field's Cramér–Rao bound on its relative error
+        (``crlb_<field>``, :meth:`_judge`): what the data can say, beside what the estimate says."""
         if self.inference is None:
             return {}
+        return {**self.inference.estimate(), **self._crlb}
+
+    def _judge(self) -> None:
+        """Every ``crlb_every`` transitions once the coin has moved: the bounds from the buffer's
+        Fisher information at the current φ and :meth:`_residual_std` (inf where the data do
+        not identify a field)."""
         every = self.config.crlb_every
         if every and self.inference.moved and len(self.inference.buffer) % every == 0:
-            info = identifiability(self.inference, noise_std_m=max(self.spec.noise_std_m, 1e-6))
+            with torch.enable_grad():       # act runs under no_grad; the bound needs ∂x̂/∂log φ
+                info = identifiability(self.inference, noise_std_m=self._residual_std())
             self._crlb = {f"crlb_{f}": v for f, v in info["crlb_relative"].items()}
-        return {**self.inference.estimate(), **self._crlb}
+
+    def _residual_std(self) -> float:
+        """The std of one transition's position residual (m) that the bound assumes: the larger of
+        the observation noise and the model's RMS misfit over the buffer at the current φ (as
+        in weighted least squares with unknown variance; 1 nm at least)."""
+        inf = self.inference
+        columns, target = inf.buffer.batch(torch.arange(len(inf.buffer)))
+        misfit = float((inf.predictor.predict(columns, inf.phi) - target).pow(2).mean().sqrt())
+        return max(self.spec.noise_std_m, misfit, 1e-9)
+
+    def _planning_phi(self) -> Phi:
+        """The φ the plan uses. Without a prior, the inference's estimate (the paper). With one,
+        each field the data identify (Cramér–Rao bound below ``identified_crlb``) takes the
+        estimate and every other field stays at the prior's median: noise that the data
+        cannot see through does not move the model (``crlb_every`` sets how often it is
+        judged; before the first judgement every field is at the prior)."""
+        prior = self.inference.config.prior
+        if not prior:
+            return self.inference.phi
+        estimate = self.inference.estimate()
+        values = {}
+        for f in self.model.phi_fields:
+            bound = self._crlb.get(f"crlb_{f}", math.nan)
+            anchored = f in prior and not bound < self.config.identified_crlb
+            values[f] = torch.tensor(prior[f][0] if anchored else estimate[f], dtype=torch.float64)
+        return Phi(**values)
+
+    def _aim(self, x: float) -> float:
+        """Where the plan goes: the target, or while the estimate is still too uncertain to
+        stop inside the window (std above ``standoff_std`` × tolerance) a stand-off point
+        ``standoff_stds`` of its stds short of it, on the side the coin comes from."""
+        cfg = self.config
+        std = self.estimate_std_m
+        if cfg.standoff_stds <= 0 or std <= cfg.standoff_std * self.tolerance_m or self.waited >= cfg.max_wait:
+            return self.target_m
+        side = math.copysign(1.0, self.start_x - self.target_m)
+        return self.target_m + side * cfg.standoff_stds * std
+
+    def _wait(self, x: float, aim: float) -> bool:
+        """Hold V at the stand-off point while the observations average the estimate down
+        (at most ``max_wait`` steps per setpoint): once the estimate is at or past the
+        stand-off point on the way to the target."""
+        if aim == self.target_m:
+            return False
+        side = math.copysign(1.0, self.start_x - self.target_m)
+        if side * (x - aim) <= self.config.hold_band * self.tolerance_m:
+            self.waited += 1
+            return True
+        return False
 
     def _cost(self, model_target_m: float):
         cfg = self.config
@@ -270,11 +337,13 @@ class MPCPolicy(Policy):
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
             self.target_m, self.plan, self.holding = target, None, False
+            self.start_x, self.waited = self.previous[0] if self.previous else x, 0
         if cfg.infer:
             start = time.perf_counter()
             self.inference.observe(x, V)
             self.inference.update()
-            self.dynamics.phi = self.inference.phi
+            self._judge()
+            self.dynamics.phi = self._planning_phi()
             self.inference_ms.append(1e3 * (time.perf_counter() - start))
         start = time.perf_counter()
         x, u = self._estimate(x, V)
@@ -286,17 +355,18 @@ class MPCPolicy(Policy):
         # within the tolerance plus its own uncertainty; at constant V static friction holds
         # the coin and the estimate's std shrinks as the observations average
         error = abs(x - self.target_m)
+        aim = self._aim(x)
         if cfg.hold_band > 0:
             if self.holding:
                 self.holding = error <= self.tolerance_m + cfg.hold_stds * self.estimate_std_m
             else:
                 self.holding = error < cfg.hold_band * self.tolerance_m
-        if self.holding:
+        if self.holding or self._wait(x, aim):
             self.plan = torch.zeros(1, T, 1, dtype=torch.float64)
             self.solve_ms.append(1e3 * (time.perf_counter() - start))
             return 0.0
         # the model's travel that the plant turns into the remaining distance (1 + g) Δ
-        model_target = x + (self.target_m - x) / (1.0 + self.gain_error)
+        model_target = x + (aim - x) / (1.0 + self.gain_error)
         self.cost = self._cost(model_target)
         tolerance = self.tolerance_m / (1.0 + self.gain_error)
         out_of_reach = False

@@ -24,7 +24,7 @@ def cmd_control(args) -> int:
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
-        infer_optimizer=args.infer_optimizer,
+        infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress,
         save_fem_runs=None if args.save_fem_runs is None else Path(args.save_fem_runs))
@@ -85,6 +85,10 @@ def register(sub) -> None:
     p.add_argument("--mpc-approach-mm", type=float, default=0.0,
                    help="the offset-free MPC slows down within this distance of the target (mm): |dV| <= dV_max * "
                         "distance / approach, so the coin does not coast past (default 0: no limit)")
+    p.add_argument("--mpc-standoff", type=float, default=0.0,
+                   help="under noise the MPC stops this many stds of its position estimate short of the target and "
+                        "holds V until the observations have averaged the estimate down, then goes on (default 0: "
+                        "off; e.g. 2)")
     p.add_argument("--mpc-oracle", action="store_true",
                    help="the MPC plans with the plant's true coin instead of inferring it online")
     p.add_argument("--phi-prior", default="none",
@@ -118,7 +122,8 @@ def cmd_dagger(args) -> int:
         policies=["mpc"], plants=control.parse_plants(args.plant, args.scene), noises=control.parse_noises(args.noise),
         out=Path(args.out), episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, hold_steps=args.hold,
         target_m=1e-3 * args.target_mm, data=Path(args.data), phi_prior=args.phi_prior,
-        mpc_approach_m=1e-3 * args.mpc_approach_mm, scene=args.scene, overrides=args.overrides, progress=False)
+        mpc_approach_m=1e-3 * args.mpc_approach_mm, mpc_standoff=args.mpc_standoff, scene=args.scene,
+        overrides=args.overrides, progress=False)
     config = dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
                                  val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
                                  model=None if args.mpc_model is None else Path(args.mpc_model), seed=args.seed)
@@ -144,6 +149,7 @@ def register_dagger(sub) -> None:
     p.add_argument("--mpc-approach-mm", type=float, default=1.0,
                    help="the MPC's approach limit (mm; default 1.0, see deapull control --help)")
     p.add_argument("--phi-prior", default="coins", help="the MPC's inference prior: none or coins (default)")
+    p.add_argument("--mpc-standoff", type=float, default=2.0, help="the MPC's stand-off (stds; default 2)")
     p.add_argument("--max-steps", type=int, default=600, help="steps before an episode counts as failed (600)")
     p.add_argument("--hold", type=int, default=100, help="steps held after the first success (100)")
     p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position (mm; default -1)")

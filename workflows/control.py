@@ -107,6 +107,7 @@ class ControlConfig:
     mpc_cost: str = "scaled"
     mpc_oracle: bool = False
     mpc_approach_m: float = 0.0
+    mpc_standoff: float = 0.0
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
     sac_dir: str = "out/models/sac{n}"
@@ -201,6 +202,8 @@ def check(config: ControlConfig) -> None:
         from deapull.control.dynamics import COSTS
         if config.mpc_cost not in COSTS:
             raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
+        if not (math.isfinite(config.mpc_standoff) and config.mpc_standoff >= 0):
+            raise InputError(f"--mpc-standoff {config.mpc_standoff!r}: must be a finite number >= 0 (stds)")
         if not (math.isfinite(config.mpc_approach_m) and config.mpc_approach_m >= 0):
             raise InputError(f"--mpc-approach-mm {1e3 * config.mpc_approach_m!r}: must be a finite number >= 0 (mm)")
         if config.phi_prior not in PHI_PRIORS:
@@ -286,6 +289,7 @@ def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
     settings = MPCConfig(cost=config.mpc_cost, infer=not config.mpc_oracle, filter=filter,
                          offset_free=not plain, hold_band=0.0 if plain else MPCConfig.hold_band,
                          approach_m=0.0 if plain else config.mpc_approach_m,
+                         standoff_stds=0.0 if plain else config.mpc_standoff,
                          inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
     return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
 

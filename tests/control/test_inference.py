@@ -215,22 +215,25 @@ def test_no_start_value_equals_a_setups_truth():
 
 def test_the_mpc_reports_each_fields_cramer_rao_bound_as_it_goes(coulomb, sweep):
     """An inferring MPC reports, beside φ, each inferred field's Cramér–Rao bound on its
-    relative error: NaN before the coin has moved, then finite, and ten times larger at ten
-    times the noise on the same kind of episode (the Fisher information scales with 1/σ²).
-    Broken once: the bound computed with the noise fixed at 1e-6 (the test then fails)."""
+    relative error: NaN before the coin has moved, then finite; on exact observations of
+    a plant the model fits (the fixture surrogate itself) the bounds are small, at 0.1 mm of
+    noise they are large (the Fisher information scales with 1/σ², σ the larger of the noise
+    and the model's misfit). Broken once: the bound computed with σ fixed at 1 nm (the noisy
+    episode then claimed bounds as small as the exact one's)."""
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
     bounds = {}
-    for sigma in (1e-6, 1e-5):
+    for sigma in (0.0, 1e-4):
         env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=400, noise_std_m=sigma)
         policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, crlb_every=50))
-        ep = run_episode(env, policy, seed=0, step_limit=300, hold_steps=0)
+        ep = run_episode(env, policy, seed=0, step_limit=300, hold_steps=150)
         crlb = ep.inferred["crlb_mu_b"]
         assert math.isnan(crlb[0]) and np.isfinite(crlb[-1])
-        bounds[sigma] = {f: ep.inferred[f"crlb_{f}"][-1] for f in policy.inference.fields}
         assert ep.row["crlb_mu_b"] == crlb[-1]
-    for f in bounds[1e-6]:
-        assert bounds[1e-5][f] > 3 * bounds[1e-6][f], (f, bounds)
+        bounds[sigma] = {f: ep.inferred[f"crlb_{f}"][-1] for f in policy.inference.fields}
+    print(bounds)
+    assert max(bounds[0.0].values()) < 0.1
+    assert min(bounds[1e-4].values()) > 100 * max(bounds[0.0].values())
