@@ -10,7 +10,7 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem control-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -82,6 +82,15 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 	$(DEAPULL) control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 --noise $(NOISE) \
 		--data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa --sac-dir '$(MODELS)/sac{n}' \
 		--out $(OUT)/control
+
+FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --mpc-approach-mm 1.0 --mpc-standoff 2 \
+	--max-steps 3000 --mpc-model $(MODELS)/fa
+control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (~40 min)
+	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+		--model f-coulomb --epochs 300 --out $(MODELS)/fa
+	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
+		--out $(OUT)/control_fem
+	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C3 --setpoints-mm -0.5,-1.0,-0.7 --out $(OUT)/control_fem/multi
 
 experiments: setup ## the paper's six sliding sets for every model (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments

@@ -90,8 +90,8 @@ def test_report_from_partial_outputs_names_what_is_missing(tmp_path):
         for step in report.STEPS:
             assert step.make in text, step.make
     # one block per missing output: sweep, fields, bench-fem, fidelity, stability, experiments,
-    # excitation + experiments-protocols, control, bench-control
-    assert md.count("**Missing:**") == 10 and html.count('class="missing"') == 10
+    # excitation + experiments-protocols, control, control-fem, bench-control
+    assert md.count("**Missing:**") == 11 and html.count('class="missing"') == 11
     # the sweep's rows: one per dataset found, with V^T and the cone prediction filled in
     rows = re.findall(r'<tr id="sweep-(C\d)">(.*?)</tr>', html)
     assert [r[0] for r in rows] == ["C1", "C2", "C3"]
@@ -131,6 +131,11 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     assert "img/control_position_surrogate_C2_noise0.001.png" in page.imgs
     assert re.search(r'<tr id="stab-baseline">', html) and re.search(r'<tr id="fid-ref">', html)
     assert "mpc.pytorch" in html
+    # the FEM closed loop: counted from its CSV (one of the two fake episodes settled)
+    fem = claims["The MPC on the FEM plant (noise 0.1 mm)"]
+    assert fem["ours"] == "settled in 1/2 episodes" and fem["anchor"] == "#control-fem-0"
+    assert re.search(r'<tr id="control-fem-1">', html) and "img/control_fem_control_fem_position_fem_C1_noise0.0001.png" \
+        in page.imgs
     # provenance: every source file listed with its hash
     for src in summary["sources"]:
         assert src["anchor"] in page.ids and len(src["sha256"]) == 12
@@ -227,6 +232,12 @@ def _fake_studies(inputs: report.Inputs) -> None:
     (inputs.control / "table.md").write_text("| policy | reached |\n|---|---|\n| mpc | 3/3 |\n| pd | 3/3 |\n")
     for noise in ("0", "0.001"):
         _png(inputs.control / f"position_surrogate_C2_noise{noise}.png")
+    fem = [dict(policy="mpc", plant=f"fem:C{c}", noise_std_m=1e-4, setpoints_mm="-1", iterations_per_setpoint="900",
+                iterations_to_target=900, setpoints_settled=1, settled=c != 2, reached=True, overshoot_m=0.0,
+                final_abs_error_m=4e-6, plant_ms_per_step=60.0, episode_wall_s=90.0) for c in (1, 2)]
+    inputs.control_fem.mkdir(parents=True)
+    write_csv(inputs.control_fem / "control.csv", fem, list(fem[0]))
+    _png(inputs.control_fem / "position_fem_C1_noise0.0001.png")
     inputs.bench_fem.mkdir(parents=True)
     (inputs.bench_fem / "bench_fem.json").write_text(json.dumps(
         {"shipped default": {"wall_s": 10.0, "points": 722, "dofs": 1587, "newton_its": 4500, "travel_mm": 1.326,

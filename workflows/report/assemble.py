@@ -29,7 +29,8 @@ SECTIONS = (("model", sections_fem.section_model),
             ("stability", sections_fem.section_stability),
             ("surrogates", sections_surrogates.section_surrogates),
             ("protocols", sections_surrogates.section_protocols),
-            ("control", sections_control.section_control))
+            ("control", sections_control.section_control),
+            ("control-fem", sections_control.section_control_fem))
 FIRST = sections_page.section_summary
 LAST = sections_page.section_provenance
 TITLE = "deapull: reproduction report of Lahariya et al., IROS 2022"

@@ -27,6 +27,7 @@ class Inputs:
     stability: Path = Path("out/stability")
     experiments: Path = Path("out/experiments")
     control: Path = Path("out/control")
+    control_fem: Path = Path("out/control_fem")
     bench_control: Path = Path("out/bench_control")
     bench_fem: Path = Path("out/bench_fem")
     excitation: Path = Path("data/excitation")
@@ -38,7 +39,8 @@ class Inputs:
         root = Path(out_root)
         default = {"fields": root / "report_fields" / "C3_fields.xdmf", "fidelity": root / "fidelity",
                    "stability": root / "stability", "experiments": root / "experiments",
-                   "control": root / "control", "bench_control": root / "bench_control",
+                   "control": root / "control", "control_fem": root / "control_fem",
+                   "bench_control": root / "bench_control",
                    "bench_fem": root / "bench_fem", "excitation": Path(data) / "excitation",
                    "protocols": root / "protocols"}
         default.update({k: Path(v) for k, v in paths.items() if v is not None})
@@ -76,6 +78,9 @@ STEPS = (
          "the surrogates on held-out protocols and coins"),
     Step("control", "make control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 "
          "--episodes 10 --noise 0,1e-5,1e-4,1e-3 --out out/control", "the closed-loop episodes (Fig. 6)"),
+    Step("control-fem", "make control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --episodes 1 "
+         "--noise 1e-4 --phi-prior coins --mpc-approach-mm 1.0 --mpc-standoff 2 --max-steps 3000 --out "
+         "out/control_fem", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)"),
     Step("bench-control", "make bench-control", "python bench/bench_control.py --out out/bench_control",
          "the MPC step beside mpc.pytorch"),
 )
@@ -90,6 +95,7 @@ def step_done(name: str, inputs: Inputs) -> bool:
         return inputs.fields.is_file() and dataset.is_complete(fields_run(inputs.fields))
     files = {"fidelity": inputs.fidelity / "fidelity.csv", "stability": inputs.stability / "stability.csv",
              "experiments": inputs.experiments / "experiments.csv", "control": inputs.control / "control.csv",
+             "control-fem": inputs.control_fem / "control.csv",
              "bench-control": inputs.bench_control / "bench_control.json",
              "bench-fem": inputs.bench_fem / "bench_fem.json",
              "experiments-protocols": inputs.protocols / "protocols.csv"}
