@@ -191,6 +191,9 @@ def check(config: ControlConfig) -> None:
         if importlib.util.find_spec("dolfinx") is None:
             raise InputError("--plant fem:...: the FEM plant needs dolfinx (FEniCSx), which is not installed")
         scenes.load(config.scene, setup=config.plants[0].setup, overrides=config.overrides)
+        for spec in config.plants:
+            if spec.kind == "fem":
+                fem_reach(config, spec)
     for spec in config.plants:
         needs_surrogate = spec.kind == "surrogate" or ("sac" in config.policies and not _sac_saved(config, spec))
         if needs_surrogate:
@@ -444,13 +447,12 @@ def fem_run_name(config: ControlConfig, spec: PlantSpec, name_of: str, noise: fl
 
 def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
     """Refuse a target the plant cannot reach under the |ΔV| limit (:func:`ramp_reach_m`), never
-    move it. A surrogate plant is checked (one ramp rollout); an FEM plant is not (a full FEM
-    ramp: its reach is its dataset's travel, docs/control.md)."""
+    move it. A surrogate plant is checked by one ramp rollout, an FEM plant against its own
+    dataset's travel (:func:`fem_reach`)."""
     from deapull.control.env import V_MAX_V         # lazy: the control stage loads torch and gymnasium
     from deapull.control.plants import ramp_reach_m  # lazy: as above
     if spec.kind != "surrogate":
-        log.info("%s: the target's reach is not checked on an FEM plant", spec.name)
-        return
+        return                              # checked before any work (check: fem_reach)
     steps = math.ceil(V_MAX_V / config.dv_max_V) + REACH_HOLD_STEPS
     reach = ramp_reach_m(plant, config.dv_max_V, V_MAX_V, steps)
     furthest = min(config.task)
@@ -459,6 +461,23 @@ def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
         raise InputError(f"{option} {1e3 * furthest:g}: {spec.name} cannot reach it; its coin gets to "
                          f"{1e3 * reach:.4f} mm at most under the fastest push (+{config.dv_max_V:g} V per step to "
                          f"{V_MAX_V:g} V, then held {REACH_HOLD_STEPS} steps); choose a target within reach")
+
+
+def fem_reach(config: ControlConfig, spec: PlantSpec) -> None:
+    """An FEM plant's reach is its own dataset's (``--data``/<setup>.nc, the FEM of the same
+    scene under the 0–400 V ramp): a target beyond the coin's travel there is refused. Without
+    the dataset the reach is not checked (one FEM ramp would cost a whole solve), and the log
+    says so."""
+    from deapull.surrogate.data import load_setup  # lazy: as in check_reach
+    path = config.data / f"{spec.setup}.nc"
+    if not path.is_file():
+        log.info("%s: the target's reach is not checked (no %s to read it from)", spec.name, path)
+        return
+    reach = float(np.min(load_setup(path).x))
+    if reach > min(config.task) + config.tolerance_m:
+        option = "--setpoints-mm" if config.setpoints_m else "--target-mm"
+        raise InputError(f"{option} {1e3 * min(config.task):g}: {spec.name} cannot reach it; its FEM dataset {path} "
+                         f"takes the coin to {1e3 * reach:.4f} mm at most (0 to 400 V); choose a target within reach")
 
 
 def write_outputs(config: ControlConfig, episodes: list[Episode]) -> None:

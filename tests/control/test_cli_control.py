@@ -146,3 +146,16 @@ def test_the_papers_adam_and_lm_are_both_reachable_from_the_cli(base, tmp_path, 
     with pytest.raises(SystemExit) as bad:                 # argparse: exit 2 naming the choices
         main([*base, "--policy", "mpc", "--infer-optimizer", "sgd"])
     assert bad.value.code == 2 and "--infer-optimizer" in capsys.readouterr().err
+
+
+def test_a_target_beyond_the_fem_plants_dataset_exits_2_before_any_mesh(tmp_path, sweep_dir, capsys):
+    """The FEM plant's reach is its own dataset's travel (the fixture's C1: ~0.65 mm): −5 mm is
+    refused naming the dataset, before the plant's mesh is made. Broken once: the check
+    skipped for FEM plants (the run then started meshing)."""
+    out = tmp_path / "out"
+    argv = ["control", "--policy", "heur", "--plant", "fem:C1", "--data", str(sweep_dir), "--target-mm", "-5",
+            "--out", str(out), "--no-progress", *[a for s in TINY_MESH for a in ("--set", s)]]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--target-mm -5" in err and "cannot reach it" in err and "C1.nc" in err
+    assert not (out / "fem").exists()
