@@ -90,7 +90,7 @@ control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e
 		--model f-coulomb --epochs 300 --out $(MODELS)/fa
 	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
 		--out $(OUT)/control_fem
-	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C3 --setpoints-mm -0.5,-1.0,-0.7 --out $(OUT)/control_fem/multi
+	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem/multi
 
 experiments: setup ## the paper's six sliding sets for every model (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments

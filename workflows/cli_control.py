@@ -44,7 +44,7 @@ def parse_setpoints(text: str) -> list[float]:
             out.append(1e-3 * float(item))
         except ValueError:
             raise InputError(f"--setpoints-mm {item!r}: not a number (setpoints in mm, comma-separated, "
-                             "e.g. -0.5,-1.0,-0.7)") from None
+                             "e.g. --setpoints-mm=-0.5,-1.0,-0.7)") from None
     return out
 
 
@@ -74,7 +74,8 @@ def register(sub) -> None:
     p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position x^T (mm; default -1)")
     p.add_argument("--setpoints-mm", default=None,
                    help="a multi-setpoint task instead of --target-mm: setpoints visited in turn, each reached and "
-                        "then held for --hold steps, e.g. -0.5,-1.0,-0.7 (push, push, pull back)")
+                        "then held for --hold steps, e.g. --setpoints-mm=-0.5,-1.0,-0.7 (push, push, pull back; with '=', "
+                        "since the value starts with '-')")
     p.add_argument("--data", default="data", help="folder with <setup>.nc: the surrogate plants' coin φ (data)")
     p.add_argument("--plant-model", default="out/models/fs{n}",
                    help="surrogate plant model folder; {setup} -> C1, {n} -> 1 (default out/models/fs{n})")

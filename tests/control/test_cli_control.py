@@ -159,3 +159,19 @@ def test_a_target_beyond_the_fem_plants_dataset_exits_2_before_any_mesh(tmp_path
     err = capsys.readouterr().err
     assert "--target-mm -5" in err and "cannot reach it" in err and "C1.nc" in err
     assert not (out / "fem").exists()
+
+
+def test_the_multi_setpoint_task_from_the_cli(base, tmp_path, fs1_dir, capsys):
+    """``--setpoints-mm=-0.2,-0.4,-0.3`` (push, push, pull back on the fixture's surrogate): the
+    CSV has one row per episode with each setpoint's iterations and the counts, the table a
+    setpoints column; a setpoint that is not a number exits 2 naming it."""
+    argv = base + ["--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "800",
+                   "--hold", "50", "--setpoints-mm=-0.2,-0.4,-0.3"]
+    assert main(argv) == 0
+    (row,) = _rows(tmp_path / "out" / "control.csv")
+    assert row["setpoints_mm"] == "-0.2;-0.4;-0.3" and row["setpoints_reached"] == "3"
+    assert len(row["iterations_per_setpoint"].split(";")) == 3 and row["settled"] in ("True", "False")
+    assert "| -0.2;-0.4;-0.3 |" in (tmp_path / "out" / "table.md").read_text()
+    capsys.readouterr()
+    assert main(base + ["--policy", "pd", "--setpoints-mm=-0.2,far"]) == 2
+    assert "--setpoints-mm 'far'" in capsys.readouterr().err
