@@ -369,17 +369,23 @@ class MPCPolicy(Policy):
         model_target = x + (aim - x) / (1.0 + self.gain_error)
         self.cost = self._cost(model_target)
         tolerance = self.tolerance_m / (1.0 + self.gain_error)
+        # short of the target (x above it) the full ramp up, past it (a pull back) the full ramp
+        # down is the fastest way there; while even that does not bring the coin within the
+        # tolerance inside the horizon it is applied without solving (module docstring)
+        fastest = ramp if x > model_target else -ramp
+        roll = self.dynamics.rollout if self.native else functools.partial(mpc.rollout, self.dynamics)
         out_of_reach = False
-        if x - model_target > tolerance:
-            roll = self.dynamics.rollout if self.native else functools.partial(mpc.rollout, self.dynamics)
-            reach = roll(xi0, ramp)[0, :, 0] * X_UNIT_M
-            out_of_reach = bool(reach.min() > model_target + tolerance)
+        if abs(x - model_target) > tolerance:
+            reach = roll(xi0, fastest)[0, :, 0] * X_UNIT_M
+            out_of_reach = bool((reach - model_target).abs().min() > tolerance and
+                                bool(((reach - model_target) * (x - model_target) > 0).all()))
         if out_of_reach:
-            self.plan = ramp
+            self.plan = fastest
         else:
-            warm = mpc.shift(self.plan) if self.plan is not None else ramp
+            warm = mpc.shift(self.plan) if self.plan is not None else fastest
             solver = self.dynamics.solve if self.native else functools.partial(mpc.solve, self.dynamics)
-            sol = solver(self.cost, xi0.repeat(2, 1), torch.cat([warm, ramp]), -1.0, 1.0, iterations=cfg.iterations)
+            sol = solver(self.cost, xi0.repeat(3, 1), torch.cat([warm, ramp, -ramp]), -1.0, 1.0,
+                         iterations=cfg.iterations)
             self.plan = sol.u[int(sol.cost.argmin())].unsqueeze(0)
         self.solve_ms.append(1e3 * (time.perf_counter() - start))
         dV = float(self.plan[0, 0, 0]) * self.dv_max_V
