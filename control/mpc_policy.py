@@ -48,7 +48,7 @@ from dataclasses import dataclass, field, replace
 import torch
 
 from deapull.control import mpc, native
-from deapull.control.dynamics import COSTS, U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics, coin_cost
+from deapull.control.dynamics import COSTS, U_UNIT_M_S, X_UNIT_M, CoinDynamics, coin_cost
 from deapull.control.filters import FILTERS, BiasKalman, ModelKalman
 from deapull.control.inference import InferenceConfig, OnlineInference, identifiability
 from deapull.control.policies import Policy

@@ -1,0 +1,115 @@
+"""What ``deapull control`` (:mod:`deapull.workflows.control`) shows of a run: the summary
+table per policy, plant, noise and task beside the paper's numbers, and the figures: per
+plant and noise the coin's position and the voltage per policy (mean and 25–75 % band over
+the episodes, the paper's Fig. 6), and the inferred φ with each field's Cramér–Rao bound."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from deapull.io import atomic_write, markdown_table
+from deapull.paper import CONTROL
+
+
+def _padded(series: list[np.ndarray]) -> np.ndarray:
+    """Episodes of different lengths as one array, each held at its last value."""
+    n = max(len(s) for s in series)
+    return np.stack([np.concatenate([s, np.full(n - len(s), s[-1])]) for s in series])
+
+
+def plot_all(config, episodes) -> None:
+    """Every figure of a run (``control.ControlConfig``, its ``Episode`` list) into ``config.out``."""
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when the figures are drawn
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from deapull.control.plants import DT_S  # lazy: the control stage loads torch
+    groups: dict = {}
+    for e in episodes:
+        groups.setdefault((e.row["plant"], e.row["noise_std_m"]), {}).setdefault(e.row["policy"], []).append(e)
+    for (plant, noise), by_policy in groups.items():
+        stem = f"{plant.replace(':', '_')}_noise{noise:g}"
+        for what, get, ylabel, dt in (("position", lambda e: 1e3 * e.x_m, "coin x [mm]", None),
+                                      ("voltage", lambda e: e.V_V, "V [V]", DT_S)):
+            fig, ax = plt.subplots(figsize=(7, 4))
+            for policy, eps in by_policy.items():
+                values = _padded([get(e) for e in eps])
+                t = np.arange(values.shape[1]) * (dt or 1)
+                ax.plot(t, values.mean(0), label=f"{policy} (mean of {len(eps)})")
+                lo, hi = np.percentile(values, [25, 75], axis=0)
+                ax.fill_between(t, lo, hi, alpha=0.25)
+            if what == "position":
+                target = 1e3 * config.target_m
+                ax.axhline(target, color="k", lw=0.8, ls="--", label=f"x^T = {target:g} mm")
+                ax.axhspan(target - 1e3 * config.tolerance_m, target + 1e3 * config.tolerance_m, color="0.85")
+            ax.set_xlabel("t [s]" if dt else "iteration (Δt = 1 ms)")
+            ax.set_ylabel(ylabel)
+            ax.set_title(f"{plant}, observation noise {noise:g} m (line: mean, band: 25–75 %; "
+                         "finished episodes held)", fontsize=9)
+            ax.legend(fontsize=8)
+            _save(fig, config.out / f"{what}_{stem}.png")
+        inferring = {p: eps for p, eps in by_policy.items() if eps[0].inferred}
+        if inferring:
+            fields = sorted({f for eps in inferring.values() for f in eps[0].inferred})
+            fig, axes = plt.subplots(len(fields), 1, figsize=(7, 2.5 * len(fields)), squeeze=False)
+            truth = next(iter(inferring.values()))[0].row
+            for ax, f in zip(axes[:, 0], fields):
+                for policy, eps in inferring.items():
+                    values = _padded([e.inferred[f] for e in eps if f in e.inferred]).astype(float)
+                    values[~np.isfinite(values)] = np.nan          # a bound not yet computed, or inf
+                    ax.plot(values.mean(0), label=f"{policy} (mean)")
+                    lo, hi = np.percentile(values, [25, 75], axis=0)
+                    ax.fill_between(np.arange(values.shape[1]), lo, hi, alpha=0.25)
+                true = truth.get(f"true_{f}")
+                if true is not None and math.isfinite(true):
+                    ax.axhline(true, color="k", ls="--", lw=0.8, label="true")
+                if f.startswith("crlb_"):       # the Cramér–Rao bound on the relative error
+                    ax.set_yscale("log")
+                    ax.axhline(0.1, color="r", ls=":", lw=0.8, label="10 % (the paper's inference error)")
+                ax.set_ylabel(f)
+                ax.legend(fontsize=8)
+            axes[-1, 0].set_xlabel("iteration")
+            _save(fig, config.out / f"inferred_{stem}.png")
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt  # lazy: as in plot_all
+    fig.tight_layout()
+    atomic_write(path, lambda p: fig.savefig(p, dpi=110, format="png"), suffix=".png")
+    plt.close(fig)
+
+
+def summary_rows(rows: list[dict]) -> list[dict]:
+    """One row per (policy, plant, noise): counts, medians and the paper's numbers."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault((r["policy"], r["plant"], r["noise_std_m"], r.get("setpoints_mm", "")), []).append(r)
+    out = []
+    for (policy, plant, noise, task), group in groups.items():
+        its = [r["iterations_to_target"] for r in group if r["reached"]]
+        q = np.percentile(its, [25, 50, 75]) if its else [math.nan] * 3
+        paper_its, paper_ms = CONTROL[policy.split("+")[0]]
+        overshoot = [r["overshoot_m"] for r in group if r.get("overshoot_m") is not None]
+        out.append({"policy": policy, "plant": plant, "noise": noise, "task": task,
+                    "reached": f"{len(its)}/{len(group)}",
+                    "settled": f"{sum(r['settled'] for r in group)}/{len(group)}",
+                    "its": "–" if not its else f"{q[1]:.0f} [{q[0]:.0f}–{q[2]:.0f}]",
+                    "error_mm": 1e3 * float(np.median([r["final_abs_error_m"] for r in group])),
+                    "overshoot_mm": 1e3 * max(overshoot) if overshoot else math.nan,
+                    "ms": float(np.mean([r["ms_per_iteration"] for r in group])),
+                    "training": group[0]["training_steps"],
+                    "paper_its": paper_its, "paper_ms": paper_ms})
+    return out
+
+
+def summary_table(rows: list[dict]) -> str:
+    """Markdown: per policy, plant and noise, beside the paper's iterations and time."""
+    return markdown_table(summary_rows(rows), [
+        ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
+        ("setpoints (mm)", "task", "s"), ("reached", "reached", "s"), ("settled", "settled", "s"),
+        ("iterations to target, median [25–75 %]", "its", "s"),
+        ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("largest overshoot (mm)", "overshoot_mm", ".3g"), ("ms / iteration", "ms", ".3g"),
+        ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
+        ("paper: ms / iteration", "paper_ms", "g")])
