@@ -28,8 +28,8 @@ that trusts it overshoots or stops short. A :class:`~deapull.control.filters.Bia
 estimates that factor, g, with the position (x' = x + (1 + g) Δ, Δ the model's step), and
 the plan aims the model at x̂ + (x^T − x̂)/(1 + g): the model's travel that the plant turns
 into the remaining distance. Once the estimate is inside ``hold_band`` × tolerance of the
-target the policy holds V (ΔV = 0) until the estimate leaves the tolerance by more than
-its own standard deviation: at constant V static friction holds the coin, so holding is
+target the policy holds V (ΔV = 0) until the estimate leaves that band by more than its
+own standard deviation: at constant V static friction holds the coin, so holding is
 what settles it, and the MPC's own small corrections on a noisy estimate are what would
 move it out. Past the target the plan may bring V down (the release pulls the
 coin back toward the clamp).
@@ -107,8 +107,9 @@ class MPCConfig:
         Start holding V once the estimate is within this fraction of the tolerance of the
         target (0: never hold; the MPC alone decides).
     hold_stds : float
-        Go on holding while the estimate stays within the tolerance plus this many of its
-        own standard deviations (a hysteresis: noise alone does not end the hold).
+        Go on holding while the estimate stays within the band plus this many of its own
+        standard deviations (a hysteresis: noise alone does not end the hold, an estimate
+        that has averaged down to a coin outside the band does).
     creep_V : float
         Outside the hold region the smallest |ΔV| per step (V): the heuristic's 0.5 V, a
         rate that still drags the coin; smaller planned steps are raised to it.
@@ -352,13 +353,13 @@ class MPCPolicy(Policy):
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
         # hold (hysteresis): start once the estimate is inside the band, and go on while it stays
-        # within the tolerance plus its own uncertainty; at constant V static friction holds
+        # within the band plus its own uncertainty; at constant V static friction holds
         # the coin and the estimate's std shrinks as the observations average
         error = abs(x - self.target_m)
         aim = self._aim(x)
         if cfg.hold_band > 0:
             if self.holding:
-                self.holding = error <= self.tolerance_m + cfg.hold_stds * self.estimate_std_m
+                self.holding = error <= cfg.hold_band * self.tolerance_m + cfg.hold_stds * self.estimate_std_m
             else:
                 self.holding = error < cfg.hold_band * self.tolerance_m
         if self.holding or self._wait(x, aim):
