@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from deapull.control import native
 from deapull.errors import InputError
 from deapull.surrogate.phi import FIELDS, Phi
 
@@ -227,7 +228,6 @@ class OnlineInference:
         self.predictor = Predictor(self.model)
         self.native = None
         if config.engine != "torch" and model.can("compiled_mpc"):
-            from deapull.control import native
             self.native = native if native.available(model) else None
         if config.engine == "native" and self.native is None:
             raise InputError(f"the native inference needs a model with the 'compiled_mpc' capability and a C "

@@ -38,6 +38,14 @@ from tqdm import tqdm
 
 from deapull import provenance
 from deapull import scene as scenes
+from deapull.control.dynamics import COSTS
+from deapull.control.env import CoinPushEnv, V_MAX_V, policy_view
+from deapull.control.inference import COIN_PRIOR, InferenceConfig
+from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+from deapull.control.plants import FEMPlant, PlantFailed, SurrogatePlant, ramp_reach_m
+from deapull.control.policies import HeuristicPolicy, PDPolicy, SACPolicy, SAC_FILE, train_sac
+from deapull.surrogate import store
+from deapull.surrogate.data import load_setup
 from deapull.errors import InputError
 from deapull.io import atomic_write, write_csv, write_json, write_text
 from deapull.workflows import control_outputs
@@ -203,7 +211,6 @@ def check(config: ControlConfig) -> None:
                 raise InputError(f"--data {str(config.data)!r}: {spec.setup}.nc not found (the plant's coin φ "
                                  f"is read from it)")
     if any(p.startswith("mpc") for p in config.policies):
-        from deapull.control.dynamics import COSTS
         if config.mpc_cost not in COSTS:
             raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
         if not (math.isfinite(config.mpc_standoff) and config.mpc_standoff >= 0):
@@ -222,7 +229,6 @@ def _require_model(folder: Path, option: str) -> None:
 
 
 def _sac_saved(config: ControlConfig, spec: PlantSpec) -> bool:
-    from deapull.control.policies import SAC_FILE
     return (config.folder(config.sac_dir, spec.setup) / SAC_FILE).is_file()
 
 
@@ -230,9 +236,6 @@ def _sac_saved(config: ControlConfig, spec: PlantSpec) -> bool:
 
 def surrogate_plant(config: ControlConfig, setup: str):
     """f_s of ``setup``: the surrogate in ``--plant-model`` simulating the setup's coin."""
-    from deapull.control.plants import SurrogatePlant
-    from deapull.surrogate import store
-    from deapull.surrogate.data import load_setup
     model, _ = store.load(config.folder(config.plant_model, setup))
     phi = model.phi_of(load_setup(config.data / f"{setup}.nc"))
     return SurrogatePlant(model, phi, name=f"surrogate:{setup}")
@@ -241,13 +244,11 @@ def surrogate_plant(config: ControlConfig, setup: str):
 def build_plant(config: ControlConfig, spec: PlantSpec):
     if spec.kind == "surrogate":
         return surrogate_plant(config, spec.setup)
-    from deapull.control.plants import FEMPlant
     scene = scenes.load(config.scene, setup=spec.setup, overrides=config.overrides)
     return FEMPlant(scene, work_dir=config.out / "fem" / spec.setup, name=spec.name)
 
 
 def make_env(config: ControlConfig, plant, noise_std_m: float, **kwargs):
-    from deapull.control.env import CoinPushEnv
     options = dict(target_m=config.target_m, tolerance_m=config.tolerance_m, dv_max_V=config.dv_max_V,
                    max_steps=(config.max_steps + config.hold_steps) * len(config.task), noise_std_m=noise_std_m,
                    terminate_on_success=False)
@@ -257,7 +258,6 @@ def make_env(config: ControlConfig, plant, noise_std_m: float, **kwargs):
 def sac_policy(config: ControlConfig, setup: str):
     """The SAC policy of ``setup``: loaded from ``--sac-dir``, or trained there first on the
     surrogate env of the setup (noise 0, ``--sac-steps`` steps)."""
-    from deapull.control.policies import SACPolicy, train_sac
     folder = config.folder(config.sac_dir, setup)
     if _sac_saved(config, PlantSpec("surrogate", setup)):
         return SACPolicy.load(folder)
@@ -268,7 +268,6 @@ def sac_policy(config: ControlConfig, setup: str):
 
 
 def build_policy(config: ControlConfig, name: str, spec: PlantSpec, plant):
-    from deapull.control.policies import HeuristicPolicy, PDPolicy
     if name in ("pd", "pd+kf"):
         return PDPolicy(filter="kf" if name == "pd+kf" else "none")
     if name == "heur":
@@ -282,10 +281,7 @@ def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
     """The MPC (:mod:`deapull.control.mpc_policy`) planning with f_a from ``--mpc-model``: φ inferred
     online, or the plant's true φ with ``--mpc-oracle``; ``filter="kf"``: from a Kalman
     estimate of the position (``mpc+kf``)."""
-    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
-    from deapull.surrogate import store
     model, _ = store.load(config.mpc_model)
-    from deapull.control.inference import COIN_PRIOR, InferenceConfig
     prior = {"none": None, "coins": COIN_PRIOR}[config.phi_prior]
     # mpc: offset-free (gain-error filter, hold inside the window); mpc+kf: the earlier MPC on a
     # position-only Kalman estimate, kept to measure what the offset-free parts add
@@ -323,8 +319,6 @@ def run_episode(env, policy, seed: int, step_limit: int, hold_steps: int, bar=No
     coin went past a setpoint in the direction it was approached. A plant failure ends the
     episode with its message as ``status``.
     """
-    from deapull.control.env import policy_view
-    from deapull.control.plants import PlantFailed
     setpoints = tuple(float(t) for t in (setpoints_m or (env.target_m,)))
     started = time.perf_counter()
     obs, info = env.reset(seed=seed)
@@ -450,8 +444,6 @@ def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
     """Refuse a target the plant cannot reach under the |ΔV| limit (:func:`ramp_reach_m`), never
     move it. A surrogate plant is checked by one ramp rollout, an FEM plant against its own
     dataset's travel (:func:`fem_reach`)."""
-    from deapull.control.env import V_MAX_V         # lazy: the control stage loads torch and gymnasium
-    from deapull.control.plants import ramp_reach_m  # lazy: as above
     if spec.kind != "surrogate":
         return                              # checked before any work (check: fem_reach)
     steps = math.ceil(V_MAX_V / config.dv_max_V) + REACH_HOLD_STEPS
@@ -469,7 +461,6 @@ def fem_reach(config: ControlConfig, spec: PlantSpec) -> None:
     scene under the 0–400 V ramp): a target beyond the coin's travel there is refused. Without
     the dataset the reach is not checked (one FEM ramp would cost a whole solve), and the log
     says so."""
-    from deapull.surrogate.data import load_setup  # lazy: as in check_reach
     path = config.data / f"{spec.setup}.nc"
     if not path.is_file():
         log.info("%s: the target's reach is not checked (no %s to read it from)", spec.name, path)

@@ -30,6 +30,11 @@ import numpy as np
 
 from deapull.errors import InputError
 from deapull.io import markdown_table, write_csv, write_text
+from deapull.surrogate import store
+from deapull.surrogate.data import load_setup, load_sweep
+from deapull.surrogate.evaluate import evaluate
+from deapull.surrogate.train import TrainConfig, train
+from deapull.workflows import control
 
 log = logging.getLogger(__name__)
 
@@ -78,9 +83,6 @@ def check(config: DaggerConfig) -> None:
 
 def train_model(config: DaggerConfig, runs: list[Path], out: Path):
     """f_a on the ramps and the aggregated runs (validated on the ramp ``val``); saved in ``out``."""
-    from deapull.surrogate import store  # lazy: torch loads when a round trains
-    from deapull.surrogate.data import load_setup, load_sweep
-    from deapull.surrogate.train import TrainConfig, train
     ramps = load_sweep(config.data, list(dict.fromkeys([*config.train, config.val])))
     train_sets = [ramps[n] for n in config.train] + [load_setup(p) for p in runs]
     result = train(TrainConfig(kind=config.kind, epochs=config.epochs, seed=config.seed), train_sets,
@@ -93,8 +95,6 @@ def model_error(model, runs: list[Path]) -> dict:
     """f_a's open-loop rollout on each closed-loop run it has not trained on, against the FEM:
     the largest |x error| and the mean |x error| (mm) and the error in % of travel (means over
     the runs)."""
-    from deapull.surrogate.data import load_setup  # lazy: torch
-    from deapull.surrogate.evaluate import evaluate
     if not runs:
         return {"model_max_abs_x_error_mm": math.nan, "model_mae_x_mm": math.nan,
                 "model_x_error_pct_travel": math.nan}
@@ -125,8 +125,6 @@ def improved(result: dict, best: dict | None) -> bool:
 
 def run(config: DaggerConfig) -> list[dict]:
     """The rounds (module docstring); returns one row per round and writes the tables."""
-    from deapull.workflows import control  # lazy: torch and gymnasium load when a run starts
-    from deapull.surrogate import store
     check(config)
     control.check(replace(config.control, mpc_model=str(config.model)) if config.model else
                   replace(config.control, mpc_model="", policies=[]))
