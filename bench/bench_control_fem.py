@@ -30,7 +30,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mpc-model", default="out/models/fa", help="f_a (default out/models/fa)")
     ap.add_argument("--data", default="data")
     ap.add_argument("--hold", type=int, default=100)
-    ap.add_argument("--max-steps", type=int, default=600)
+    ap.add_argument("--max-steps", type=int, default=3000)
+    ap.add_argument("--approach-mm", type=float, default=1.0, help="the MPC's approach limit (as make control-fem)")
+    ap.add_argument("--standoff", type=float, default=2.0, help="the MPC's stand-off in stds (as make control-fem)")
     ap.add_argument("--out", default="out/bench_control_fem")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s: %(message)s")
@@ -38,14 +40,15 @@ def main(argv=None) -> int:
         policies=["mpc"], plants=control.parse_plants(",".join(f"fem:{s}" for s in control.parse_list(args.plants,
                                                                                                      "--plants"))),
         noises=[args.noise], out=Path(args.out), episodes=1, hold_steps=args.hold, max_steps=args.max_steps,
-        data=Path(args.data), mpc_model=args.mpc_model, phi_prior="coins", progress=False)
+        data=Path(args.data), mpc_model=args.mpc_model, phi_prior="coins", mpc_approach_m=1e-3 * args.approach_mm,
+        mpc_standoff=args.standoff, progress=False)
     rows = [e.row for e in control.run(config)]
     table = []
     for r in rows:
         fem, plan, infer = r["plant_ms_per_step"], r["solve_ms_per_iteration"], r["inference_ms_per_iteration"] or 0.0
         table.append({"plant": r["plant"], "steps": r["steps_run"], "fem_ms": fem, "plan_ms": plan, "infer_ms": infer,
                       "ratio": fem / plan if plan else float("nan"), "wall_s": r["episode_wall_s"],
-                      "reached": r["iterations_to_target"] if r["reached"] else "–",
+                      "reached": f"{int(r['iterations_to_target']):d}" if r["reached"] else "–",
                       "settled": "yes" if r["settled"] else "no", "overshoot_mm": 1e3 * r["overshoot_m"]})
     print(markdown_table(table, [
         ("plant", "plant", "s"), ("steps", "steps", "d"), ("FEM ms / step", "fem_ms", ".1f"),
