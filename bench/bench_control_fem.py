@@ -4,8 +4,8 @@ on the FEM plant of each ``--plants`` setup, timed per part, in one run.
 Per episode: ms per FEM step (``advance(V, 1 ms)`` on the shipped scene, serial), ms per MPC
 plan (the compiled iLQR on f_a) and per inference update, the closed-loop wall time of the
 episode (placement, the start ramp and every step), and the ratio FEM step / MPC plan: how
-much of the loop is the plant. Beside the paper's figures (``deapull.paper``): its MPC at
-1.2 s per iteration and its ABAQUS run at 130 s per 1 s ramp. Prints a table; ``--out``
+much of the loop is the plant. Beside the paper's figures (``deapull.paper``: its MPC's time
+per iteration and its ABAQUS run's time per ramp). Prints a table; ``--out``
 keeps the harness's outputs (control.csv, traces, plots) and ``bench_control_fem.json``.
 """
 from __future__ import annotations
