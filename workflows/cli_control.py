@@ -23,7 +23,7 @@ def cmd_control(args) -> int:
         max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm,
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
-        mpc_oracle=args.mpc_oracle, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
+        mpc_oracle=args.mpc_oracle, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
         infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress,
@@ -90,6 +90,9 @@ def register(sub) -> None:
                    help="under noise the MPC stops this many stds of its position estimate short of the target and "
                         "holds V until the observations have averaged the estimate down, then goes on (default 0: "
                         "off; e.g. 2)")
+    p.add_argument("--mpc-no-infer", action="store_true",
+                   help="the MPC plans with the coin-family prior's median and infers nothing (needs --phi-prior "
+                        "coins): the fixed prior that the online inference is compared with")
     p.add_argument("--mpc-oracle", action="store_true",
                    help="the MPC plans with the plant's true coin instead of inferring it online")
     p.add_argument("--phi-prior", default="none",

@@ -30,7 +30,7 @@ import logging
 import math
 import re
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +46,7 @@ from deapull.control.plants import FEMPlant, PlantFailed, SurrogatePlant, ramp_r
 from deapull.control.policies import HeuristicPolicy, PDPolicy, SACPolicy, SAC_FILE, train_sac
 from deapull.surrogate import store
 from deapull.surrogate.data import load_setup
+from deapull.surrogate.phi import Phi
 from deapull.errors import InputError
 from deapull.io import atomic_write, write_csv, write_json, write_text
 from deapull.workflows import control_outputs
@@ -115,6 +116,7 @@ class ControlConfig:
     mpc_model: str = "out/models/fa"
     mpc_cost: str = "scaled"
     mpc_oracle: bool = False
+    mpc_no_infer: bool = False
     mpc_approach_m: float = 0.0
     mpc_standoff: float = 0.0
     phi_prior: str = "none"
@@ -217,6 +219,9 @@ def check(config: ControlConfig) -> None:
             raise InputError(f"--mpc-standoff {config.mpc_standoff!r}: must be a finite number >= 0 (stds)")
         if not (math.isfinite(config.mpc_approach_m) and config.mpc_approach_m >= 0):
             raise InputError(f"--mpc-approach-mm {1e3 * config.mpc_approach_m!r}: must be a finite number >= 0 (mm)")
+        if config.mpc_no_infer and (config.phi_prior != "coins" or config.mpc_oracle):
+            raise InputError("--mpc-no-infer plans with the prior's median: it needs --phi-prior coins and no "
+                             "--mpc-oracle")
         if config.phi_prior not in PHI_PRIORS:
             raise InputError(f"--phi-prior {config.phi_prior!r}: choose one of {', '.join(PHI_PRIORS)}")
         _require_model(Path(config.mpc_model), "--mpc-model")
@@ -291,6 +296,9 @@ def mpc_policy(config: ControlConfig, plant, filter: str = "none"):
                          approach_m=0.0 if plain else config.mpc_approach_m,
                          standoff_stds=0.0 if plain else config.mpc_standoff,
                          inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
+    if config.mpc_no_infer:                 # the fixed prior: what inference is measured against
+        median = Phi(**{f: COIN_PRIOR[f][0] for f in model.phi_fields if f in COIN_PRIOR})
+        return MPCPolicy(model, replace(settings, infer=False), phi=median)
     return MPCPolicy(model, settings, phi=plant.truth if config.mpc_oracle else None)
 
 

@@ -175,3 +175,18 @@ def test_the_multi_setpoint_task_from_the_cli(base, tmp_path, fs1_dir, capsys):
     capsys.readouterr()
     assert main(base + ["--policy", "pd", "--setpoints-mm=-0.2,far"]) == 2
     assert "--setpoints-mm 'far'" in capsys.readouterr().err
+
+
+def test_the_fixed_prior_mpc_infers_nothing_and_needs_the_prior(base, tmp_path, fs1_dir, capsys):
+    """``--mpc-no-infer`` plans with the coin-family prior's median (what the inference is
+    compared with): its episodes carry no inferred φ; without ``--phi-prior coins`` it exits 2
+    naming both options."""
+    argv = base + ["--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3", "--hold",
+                   "0", "--target-mm", "-0.4"]
+    assert main(argv + ["--phi-prior", "coins", "--mpc-no-infer"]) == 0
+    (row,) = _rows(tmp_path / "out" / "control.csv")
+    assert row["inferred_mass_kg"] == "" and row["inference_ms_per_iteration"] == ""
+    capsys.readouterr()
+    assert main(argv + ["--mpc-no-infer"]) == 2
+    err = capsys.readouterr().err
+    assert "--mpc-no-infer" in err and "--phi-prior coins" in err
