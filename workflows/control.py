@@ -467,9 +467,13 @@ def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
 def fem_reach(config: ControlConfig, spec: PlantSpec) -> None:
     """An FEM plant's reach is its own dataset's (``--data``/<setup>.nc, the FEM of the same
     scene under the 0–400 V ramp): a target beyond the coin's travel there is refused. Without
-    the dataset the reach is not checked (one FEM ramp would cost a whole solve), and the log
-    says so."""
+    the dataset, or with a ``--set`` of the coin (the dataset is then another coin's run), the
+    reach is not checked (one FEM ramp would cost a whole solve), and the log says so."""
     path = config.data / f"{spec.setup}.nc"
+    if any(o.split("=")[0].strip().startswith("coin.") for o in config.overrides):
+        log.warning("%s: the target's reach is not checked: --set changes the coin, so %s is another coin's run",
+                    spec.name, path)
+        return
     if not path.is_file():
         log.info("%s: the target's reach is not checked (no %s to read it from)", spec.name, path)
         return
