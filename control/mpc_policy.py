@@ -224,7 +224,7 @@ class MPCPolicy(Policy):
         self.cost = self._cost(self.target_m)
         self.plan = None
         self.holding = False
-        self.start_x, self.waited = 0.0, 0
+        self.side, self.waited = math.copysign(1.0, 0.0 - self.target_m), 0   # the coin starts at x = 0
         self.previous = None          # (x, u, V) estimate of the previous step
         self.solve_ms, self.inference_ms = [], []
 
@@ -279,8 +279,7 @@ class MPCPolicy(Policy):
         std = self.estimate_std_m
         if cfg.standoff_stds <= 0 or std <= cfg.standoff_std * self.tolerance_m or self.waited >= cfg.max_wait:
             return self.target_m
-        side = math.copysign(1.0, self.start_x - self.target_m)
-        return self.target_m + side * cfg.standoff_stds * std
+        return self.target_m + self.side * cfg.standoff_stds * std
 
     def _wait(self, x: float, aim: float) -> bool:
         """Hold V at the stand-off point while the observations average the estimate down
@@ -288,8 +287,7 @@ class MPCPolicy(Policy):
         stand-off point on the way to the target."""
         if aim == self.target_m:
             return False
-        side = math.copysign(1.0, self.start_x - self.target_m)
-        if side * (x - aim) <= self.config.hold_band * self.tolerance_m:
+        if self.side * (x - aim) <= self.config.hold_band * self.tolerance_m:
             self.waited += 1
             return True
         return False
@@ -338,7 +336,8 @@ class MPCPolicy(Policy):
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
             self.target_m, self.plan, self.holding = target, None, False
-            self.start_x, self.waited = self.previous[0] if self.previous else x, 0
+            self.side = math.copysign(1.0, (self.previous[0] if self.previous else x) - target)
+            self.waited = 0
         if cfg.infer:
             start = time.perf_counter()
             self.inference.observe(x, V)

@@ -456,12 +456,18 @@ def check_reach(config: ControlConfig, spec: PlantSpec, plant) -> None:
         return                              # checked before any work (check: fem_reach)
     steps = math.ceil(V_MAX_V / config.dv_max_V) + REACH_HOLD_STEPS
     reach = ramp_reach_m(plant, config.dv_max_V, V_MAX_V, steps)
+    _refuse_beyond(config, spec, reach, f"its coin gets to {1e3 * reach:.4f} mm at most under the fastest push "
+                   f"(+{config.dv_max_V:g} V per step to {V_MAX_V:g} V, then held {REACH_HOLD_STEPS} steps)")
+
+
+def _refuse_beyond(config: ControlConfig, spec: PlantSpec, reach_m: float, how: str) -> None:
+    """Exit 2 (InputError) when the task's furthest setpoint lies beyond ``reach_m``, naming the
+    option, the plant and ``how`` the reach was found."""
     furthest = min(config.task)
-    if reach > furthest + config.tolerance_m:
+    if reach_m > furthest + config.tolerance_m:
         option = "--setpoints-mm" if config.setpoints_m else "--target-mm"
-        raise InputError(f"{option} {1e3 * furthest:g}: {spec.name} cannot reach it; its coin gets to "
-                         f"{1e3 * reach:.4f} mm at most under the fastest push (+{config.dv_max_V:g} V per step to "
-                         f"{V_MAX_V:g} V, then held {REACH_HOLD_STEPS} steps); choose a target within reach")
+        raise InputError(f"{option} {1e3 * furthest:g}: {spec.name} cannot reach it; {how}; choose a target "
+                         "within reach")
 
 
 def fem_reach(config: ControlConfig, spec: PlantSpec) -> None:
@@ -478,10 +484,8 @@ def fem_reach(config: ControlConfig, spec: PlantSpec) -> None:
         log.info("%s: the target's reach is not checked (no %s to read it from)", spec.name, path)
         return
     reach = float(np.min(load_setup(path).x))
-    if reach > min(config.task) + config.tolerance_m:
-        option = "--setpoints-mm" if config.setpoints_m else "--target-mm"
-        raise InputError(f"{option} {1e3 * min(config.task):g}: {spec.name} cannot reach it; its FEM dataset {path} "
-                         f"takes the coin to {1e3 * reach:.4f} mm at most (0 to 400 V); choose a target within reach")
+    _refuse_beyond(config, spec, reach, f"its FEM dataset {path} takes the coin to {1e3 * reach:.4f} mm at most "
+                   "(0 to 400 V)")
 
 
 def write_outputs(config: ControlConfig, episodes: list[Episode]) -> None:
