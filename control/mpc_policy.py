@@ -161,6 +161,15 @@ class MPCConfig:
             raise InputError(f"MPC engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
         if not 0 <= self.hold_band <= 1:
             raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
+        for name in ("hold_stds", "creep_V", "approach_m", "standoff_stds", "max_wait", "crlb_every",
+                     "bias_process_fraction"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise InputError(f"MPC {name} = {value!r}: must be a finite number >= 0")
+        for name in ("standoff_std", "identified_crlb"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(f"MPC {name} = {value!r}: must be a finite number > 0")
         if self.horizon < 1 or self.iterations < 0:
             raise InputError(f"MPC horizon {self.horizon} must be >= 1 and iterations {self.iterations} >= 0")
         if self.cost not in COSTS:

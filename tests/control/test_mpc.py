@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from deapull.control import mpc
+from deapull.errors import InputError
 
 F64 = torch.float64
 
@@ -363,3 +364,59 @@ def test_with_a_prior_the_plan_uses_only_what_the_data_identify(coulomb, sweep):
     assert identified, planned
     for f in identified:
         assert planned[0.0][f][0] == pytest.approx(planned[0.0][f][1], rel=1e-12)
+
+
+@pytest.mark.parametrize("field, value", [("creep_V", -0.5), ("approach_m", float("nan")), ("standoff_stds", -1.0),
+                                          ("identified_crlb", 0.0), ("hold_band", 1.5), ("max_wait", -1)])
+def test_bad_mpc_settings_are_refused_naming_the_field(field, value):
+    from deapull.control.mpc_policy import MPCConfig
+    with pytest.raises(InputError, match=field.replace("_", "[ _]")):
+        MPCConfig(**{field: value})
+
+
+def test_near_the_target_the_approach_limit_slows_the_push_and_small_steps_creep(coulomb, sweep):
+    """With ``approach_m`` the planned |ΔV| within that distance of the target is at most
+    ΔV_max × distance / approach_m, never below the 0.5 V creep; without it the MPC arrives at
+    the full 5 V per step. Broken once: the limit left out (the first check failed)."""
+    from deapull.control.env import CoinPushEnv, policy_view
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    largest_near = {}
+    for approach in (0.0, 0.2e-3):
+        env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=400)
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False, approach_m=approach),
+                           phi=plant.truth)
+        obs, info = env.reset(seed=0)
+        policy.reset(env.task_spec())
+        near = []
+        for _ in range(300):
+            d = abs(env.state[0] + 0.4e-3)
+            dV = policy.act(obs, policy_view(info))
+            if approach and d < approach and dV:
+                # (the policy sees x as a float32 observation: a volt's thousandth of slack)
+                assert abs(dV) <= max(0.5, 5.0 * d / approach) + 1e-3, (d, dV)
+                assert abs(dV) >= 0.5 - 1e-9
+            if d < 0.2e-3:
+                near.append(abs(dV))
+            obs, _, _, _, info = env.step(env.action_of(dV))
+        largest_near[approach] = max(near)
+    assert largest_near[0.0] == pytest.approx(5.0) and largest_near[0.2e-3] < 5.0
+
+
+def test_under_noise_the_stand_off_holds_short_of_the_target_until_the_estimate_has_averaged(coulomb, sweep):
+    """With ``standoff_stds`` at σ = 0.1 mm the MPC stops short on the side the coin comes from
+    and holds V (the estimate's std falls as the observations average), then goes on: it
+    waits, and the coin never passes the target's window on the way. Broken once: no stand-off
+    (the policy never waited)."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000, noise_std_m=1e-4)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False, standoff_stds=2.0, max_wait=800),
+                       phi=plant.truth)
+    row = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50).row
+    assert policy.waited > 50
+    assert row["overshoot_m"] < 1e-5
