@@ -182,8 +182,10 @@ def parse_noises(text: str) -> list[float]:
     return out
 
 
-def check(config: ControlConfig) -> None:
-    """Refuse bad settings, naming the argument, before any model is loaded."""
+def check(config: ControlConfig, mpc_model_trained: bool = True) -> None:
+    """Refuse bad settings, naming the argument, before any model is loaded.
+    ``mpc_model_trained=False``: the MPC's model is made later (``deapull dagger``'s round 0),
+    so its folder is not required yet."""
     for name, value, low in (("--episodes", config.episodes, 1), ("--max-steps", config.max_steps, 1),
                              ("--hold", config.hold_steps, 0), ("--seed", config.seed, 0),
                              ("--sac-steps", config.sac_steps, 1)):
@@ -224,7 +226,8 @@ def check(config: ControlConfig) -> None:
                              "--mpc-oracle")
         if config.phi_prior not in PHI_PRIORS:
             raise InputError(f"--phi-prior {config.phi_prior!r}: choose one of {', '.join(PHI_PRIORS)}")
-        _require_model(Path(config.mpc_model), "--mpc-model")
+        if mpc_model_trained:
+            _require_model(Path(config.mpc_model), "--mpc-model")
 
 
 def _require_model(folder: Path, option: str) -> None:

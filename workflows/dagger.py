@@ -77,8 +77,6 @@ def check(config: DaggerConfig) -> None:
     for name in [*config.train, config.val]:
         if not (Path(config.data) / f"{name}.nc").is_file():
             raise InputError(f"--data {str(config.data)!r}: {name}.nc not found (the ramps f_a starts from)")
-    if config.model is not None and not (Path(config.model) / "model.json").is_file():
-        raise InputError(f"--mpc-model {str(config.model)!r}: no trained model there (model.json missing)")
 
 
 def train_model(config: DaggerConfig, runs: list[Path], out: Path):
@@ -126,8 +124,8 @@ def improved(result: dict, best: dict | None) -> bool:
 def run(config: DaggerConfig) -> list[dict]:
     """The rounds (module docstring); returns one row per round and writes the tables."""
     check(config)
-    control.check(replace(config.control, mpc_model=str(config.model)) if config.model else
-                  replace(config.control, mpc_model="", policies=[]))
+    control.check(replace(config.control, mpc_model=str(config.model or "")),
+                  mpc_model_trained=config.model is not None)
     out = Path(config.out)
     runs_dir = out / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
@@ -152,10 +150,10 @@ def run(config: DaggerConfig) -> list[dict]:
         rows.append(result)
         log.info("dagger round %d: model error on the new runs %.4f mm (max), closed loop settled %s, overshoot "
                  "%.4f mm", k, result["model_max_abs_x_error_mm"], result["settled"], result["overshoot_mm_mean"])
-        if not improved(result, best) and k > 0:
+        if not improved(result, best):
             log.info("dagger: round %d did not improve the closed loop; stopping", k)
             break
-        best = result if improved(result, best) else best
+        best = result
         aggregated += new
         if k + 1 < config.rounds:
             model_dir = out / "models" / f"r{k + 1}"

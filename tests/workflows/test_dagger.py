@@ -38,3 +38,21 @@ def test_aggregation_adds_the_closed_loop_runs_and_lowers_the_model_error_on_a_n
     print(errors, rows)
     assert errors["r1"] < errors["r0"]
     assert (tmp_path / "dagger" / "dagger.md").is_file()
+
+
+@pytest.mark.parametrize("change, named", [
+    (["--plant", "surrogate:C1"], "FEM plants only"),
+    (["--rounds", "0"], "--rounds 0"),
+    (["--train", "C3,C9"], "C9.nc not found"),
+    (["--mpc-model", "{tmp}/nowhere"], "--mpc-model"),
+    (["--mpc-standoff", "-1"], "--mpc-standoff"),
+])
+def test_bad_dagger_arguments_exit_2_naming_them_before_any_work(tmp_path, sweep_dir, capsys, change, named):
+    from deapull.workflows.cli import main
+    out = tmp_path / "out"
+    argv = ["dagger", "--data", str(sweep_dir), "--train", "C3,C4", "--val", "C5", "--target-mm", "-0.4",
+            "--out", str(out),
+            *[a.format(tmp=tmp_path) for a in change]]
+    assert main(argv) == 2
+    assert named in capsys.readouterr().err
+    assert not out.exists()
