@@ -415,10 +415,10 @@ class DEAProblem:
                 degree, rule = sc.quadrature_degree, sc.quadrature_rule
             else:
                 degree, rule = self.scene.table.quadrature_degree, "gauss_lobatto"
-            setattr(self, attr, compat.facet_quadrature_points(self.mesh, facets, degree, rule))
-            self._u_view = self.w.sub(0) if self.has_parts else self.w
-        points, cells = getattr(self, attr)
-        return points + self._u_view.eval(points, cells) if len(points) else points
+            points, cells = compat.facet_quadrature_points(self.mesh, facets, degree, rule)
+            setattr(self, attr, compat.PointEvaluator(self.w, points, cells, 0 if self.has_parts else None))
+        ev = getattr(self, attr)
+        return ev.points + ev.values(self.w)
 
     def _obstacle_depth_at_points(self) -> np.ndarray:
         lay = self.layout

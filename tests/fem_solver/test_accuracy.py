@@ -96,6 +96,34 @@ def test_contact_points_are_the_gauss_legendre_nodes_of_each_facet(tmp_path):
     assert np.isclose(lobatto[:, 0].min(), -sc.dea.length_m)   # Lobatto points reach the free edge
 
 
+@pytest.mark.parametrize("formulation", ["mixed", "displacement"])
+def test_point_evaluator_matches_function_eval_and_refuses_a_wrong_basis(tmp_path, formulation, monkeypatch):
+    # the contact/table point values come from a sparse product built once; Function.eval is
+    # the independent answer (it pulls each point back on every call)
+    sc, p = _problem(tmp_path, "blocked_force", "mesh.n_length=4", "mesh.n_width=2",
+                     f"solver.formulation='{formulation}'", "dea.poisson_ratio=0.45")
+    facets = compat.facets_with_tag(p._facet_tags, groups.DEA_CONTACT)
+    points, cells = compat.facet_quadrature_points(p.mesh, facets, 8, "gauss")
+    sub = 0 if p.has_parts else None
+    ev = compat.PointEvaluator(p.w, points, cells, sub)
+    assert ev.B is not None
+    p.w.x.array[:] = np.random.default_rng(3).standard_normal(len(p.w.x.array))
+    field = p.w.sub(0) if p.has_parts else p.w
+    assert np.allclose(ev.values(p.w), field.eval(points, cells), rtol=0, atol=1e-12)
+    real = compat.basix.create_element
+
+    class Shuffled:   # the right basis functions in the wrong dof order
+        def __init__(self, *args):
+            self.element = real(*args)
+
+        def tabulate(self, n, x):
+            return np.roll(self.element.tabulate(n, x), 1, axis=2)
+
+    monkeypatch.setattr(compat.basix, "create_element", Shuffled)
+    with pytest.raises(RuntimeError, match="disagrees with Function.eval"):
+        compat.PointEvaluator(p.w, points, cells, sub)
+
+
 @pytest.mark.parametrize("sym", ["none", "half_z"])
 def test_uniform_pressure_patch_gives_pressure_times_area(tmp_path, sym):
     # a stop wider than the whole underside: uniform penetration δ, so Fy = k_n δ L w for any rule
