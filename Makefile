@@ -44,8 +44,9 @@ excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C
 bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the converged reference, Newton its, 8-setup sweep; beside ABAQUS 130 s
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
 
-fem-study: setup ## FEM accuracy studies (reference ladder, dt, contact quadrature, eps_v, candidates); resumes; hours
-	$(PY) bench/fem_study.py --study all --out $(OUT)/fem_study
+FEM_STUDY ?= reference,patch-rule,shipped
+fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule, the shipped default against it (FEM_STUDY=all: every study); resumes; ~1 h
+	$(DEAPULL) fem-study --study $(FEM_STUDY) --out $(OUT)/fem_study
 
 fidelity: setup ## error against run time ladder on coin_pull C3 (issue 4)
 	$(MPIRUN) $(DEAPULL) fidelity --scene coin_pull --setup C3 --out $(OUT)/fidelity

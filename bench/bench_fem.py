@@ -4,7 +4,7 @@ ABAQUS time (``deapull.paper``).
 
 Measured in this run: the shipped default on C3 (wall time, Newton iterations), the old
 default (full model, 16 x 2, MUMPS) as the baseline of the speed ratio, and the sweep. The
-accuracy is against the committed converged reference of ``bench/fem_study.py --study
+accuracy is against the committed converged reference of ``deapull fem-study --study
 reference`` (``bench/reference/``: the finest half-model run's x(t) and the Richardson
 travel with its error bound); ``--reference DIR`` points at a fresh one. Nothing here is
 asserted: it prints, and writes ``bench_fem.json``.
@@ -24,7 +24,7 @@ import numpy as np
 from deapull import dataset
 from deapull.io import write_json
 from deapull.paper import ABAQUS_POINTS, ABAQUS_S
-from fem_study import OLD_DEFAULT, mpirun_env     # bench/ is on sys.path
+from deapull.workflows.fem_study import OLD_DEFAULT, ladder_table, mpirun_env
 
 PAPER_ABAQUS_S = ABAQUS_S          # paper: 1 s / ABAQUS_POINTS points per setup
 TARGET_S, TARGET_TRAVEL_ERR, TARGET_MAE, TARGET_SWEEP_S = 13.0, 0.02, 0.01, 60.0   # issue 12's goals
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="out/bench_fem")
     ap.add_argument("--np", type=int, default=2, help="MPI ranks for the sweep")
     ap.add_argument("--reference", default=str(REFERENCE),
-                    help="folder with reference.json and C3_reference.nc (bench/fem_study.py --study reference)")
+                    help="folder with reference.json and C3_reference.nc (deapull fem-study --study reference)")
     ap.add_argument("--skip-sweep", action="store_true")
     ap.add_argument("--skip-baseline", action="store_true")
     args = ap.parse_args(argv)
@@ -91,6 +91,7 @@ def main(argv=None) -> int:
     print(f"\nFEM benchmark: coin_pull C3, 1 s ramp 0-400 V, one core; reference: {ref['label']}, travel "
           f"{1e3 * ref['travel_ref_m']:.4f} mm, its own error "
           f"{'± %.2f %%' % (100 * bound) if bound is not None else 'unknown (not converged)'}")
+    print(ladder_table(ref) + "\n")
     head = f"{'':26s} {'wall s':>8s} {'vs ABAQUS':>10s} {'points':>7s} {'dofs':>6s} {'Newton':>7s} " \
            f"{'travel mm':>10s} {'travel err':>11s} {'x(t) MAE':>9s}"
     print(head)

@@ -353,8 +353,8 @@ class PointEvaluator:
     """Values of a vector field at fixed points, as one sparse product.
 
     ``Function.eval`` pulls every point back to its cell (a Newton solve per point on
-    non-affine hexahedra) each time it is called; on the coin scenes that was ~4 ms a call and
-    a quarter of a run's wall time. The points here do not move in the reference configuration,
+    non-affine hexahedra) each time it is called (docs/fem_accuracy.md has its cost on the
+    coin scenes). The points here do not move in the reference configuration,
     so they are pulled back once, the element's basis is tabulated there once, and
     :meth:`values` is ``B @ w.x.array`` (row 3 p + i = component i at point p).
 

@@ -1,4 +1,4 @@
-"""Sub-commands of the FEM studies: ``fidelity`` and ``stability`` (dolfinx is imported lazily).
+"""Sub-commands of the FEM studies: ``fidelity``, ``stability`` and ``fem-study`` (dolfinx is imported lazily).
 
 Both run under ``mpirun -n N`` like the sweep (cases over rank groups, one rank per case by
 default), resume after an interruption, and print their table on rank 0.
@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from deapull import scene as scenes
+from deapull.workflows import fem_study
 from deapull.workflows.args import add_scene_args, names
 from deapull.workflows.fidelity import run_ladder, summary_table as fidelity_table
 from deapull.workflows.stability import run_stability, summary_table as stability_table
@@ -23,8 +24,9 @@ def cmd_fidelity(args) -> int:
         models = ladder.load_models(args.surrogate)
         load_setup(Path(args.surrogate_data) / f"{setup}.nc")
 
-        def extra(setup_name):
+        def surrogate_rows(setup_name):
             return ladder.ladder_rows(models, args.surrogate_data, setup_name, args.out)
+        extra = surrogate_rows
     rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, args.overrides,
                       names(args.only), args.ranks_per_case, extra_rows=extra)
     if MPI.COMM_WORLD.rank != 0:
@@ -44,6 +46,12 @@ def cmd_stability(args) -> int:
     print(stability_table(rows))
     print(f"wrote {args.out}/stability.csv, stability.md")
     return 1 if any(r["status"] == "error" for r in rows) else 0
+
+
+def cmd_fem_study(args) -> int:
+    cases = [c for c in args.cases.split(",") if c]   # bad studies, cases or reference: InputError before any run
+    return fem_study.run_studies(fem_study.studies_from(args.study), Path(args.out), Path(args.reference), cases,
+                                 args.reference_ranks)
 
 
 def _common(p) -> None:
@@ -77,3 +85,9 @@ def register(sub) -> None:
                    help="quick: 1 s ramp with base step 0.01 s; full: the scene's steps (default quick)")
     _common(p)
     p.set_defaults(func=cmd_stability)
+
+    p = sub.add_parser("fem-study", help="FEM accuracy studies of coin_pull C3: the converged reference's "
+                                         "convergence table and bound, and each study's cases against it "
+                                         "(default: the shipped default and its contact rule doubled; resumes)")
+    fem_study.add_arguments(p)
+    p.set_defaults(func=cmd_fem_study)

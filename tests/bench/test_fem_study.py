@@ -1,16 +1,13 @@
-"""The reference ladder's Richardson extrapolation (bench/fem_study.py): an observed order,
+"""The reference ladder's Richardson extrapolation (deapull fem-study): an observed order,
 an extrapolated value and an error bound from three levels with unequal refinement ratios,
 checked on sequences f(h) = f0 + C h^p whose limit and order are known."""
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-from fem_study import GCI_SAFETY, richardson  # noqa: E402
+from deapull.workflows.fem_study import GCI_SAFETY, richardson
 
 #: the ladder's element lengths (16, 24, 32 divisions): ratios 1.5 and 4/3
 H = (1 / 16, 1 / 24, 1 / 32)
@@ -34,3 +31,22 @@ def test_oscillating_levels_give_no_order_and_the_larger_difference_as_bound():
     assert math.isnan(order)
     assert limit == 1.3400
     assert bound == pytest.approx(1.3563 - 1.3302)
+
+
+def test_bad_studies_cases_or_reference_are_refused_before_any_run(tmp_path, monkeypatch):
+    from deapull.errors import InputError
+    from deapull.workflows import fem_study
+
+    def ran(*args, **kwargs):
+        raise AssertionError("a case ran before the input was checked")
+
+    monkeypatch.setattr(fem_study, "solve", ran)
+    with pytest.raises(InputError, match="--study 'bogus'.*allowed: reference"):
+        fem_study.studies_from("bogus")
+    with pytest.raises(InputError, match=r"--reference .*nowhere: no reference.json"):
+        fem_study.run_studies(["shipped"], tmp_path / "out", tmp_path / "nowhere")
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    (ref / "reference.json").write_text("{}")
+    with pytest.raises(InputError, match="--cases: foo not in study 'shipped'"):
+        fem_study.run_studies(["shipped"], tmp_path / "out", ref, cases=["foo"])

@@ -1,0 +1,360 @@
+"""FEM accuracy studies of coin_pull C3 (issues 12, 23): the converged reference (the resolved
+contact patch at three element sizes), the contact rule on it, the shipped default with its rule
+doubled, the contact quadrature, the friction regularisation ε_v and the candidate meshes.
+
+    deapull fem-study --study shipped|reference|patch-rule|quadrature|friction|candidates|all --out out/fem_study
+
+Each case is one ``deapull solve`` run (one core) into ``<out>/<case>/C3.nc``; a case whose
+dataset exists is not run again (the study resumes). The table compares every case with
+the reference: the finest half-model run, and the Richardson estimate of the travel from
+the three reference levels (observed order, error bound). It is printed and written as
+``<out>/<study>.csv`` / ``.md``; ``<out>/reference.json`` keeps the reference's numbers
+(``bench/bench_fem.py`` and ``--study shipped`` read the committed copy in ``bench/reference/``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from deapull import dataset, scene as scenes
+from deapull.errors import InputError
+from deapull.io import atomic_write, markdown_table, write_csv, write_json, write_text
+
+log = logging.getLogger("fem_study")
+
+HALF = ("mesh.symmetry='half_z'",)
+#: the default before issue 12 (as bench/bench_fem.py pins it)
+OLD_DEFAULT = ("mesh.symmetry='none'", "mesh.n_length=16", "mesh.n_width=2", "mesh.n_active=1", "mesh.n_passive=1",
+               "mesh.x_grading=1.0", "contact.quadrature_rule='gauss'", "contact.quadrature_degree=4",
+               "solver.linear_solver='mumps'", "contact.slip_rate_regularisation_m_s=1e-4",
+               "time.placement_first_step=1.0")
+UMF = ("solver.linear_solver='umfpack'",)
+
+
+def mesh(n_length, n_width, n_active=1, n_passive=1):
+    return (f"mesh.n_length={n_length}", f"mesh.n_width={n_width}", f"mesh.n_active={n_active}",
+            f"mesh.n_passive={n_passive}")
+
+
+def quad(rule, degree):
+    return (f"contact.quadrature_rule='{rule}'", f"contact.quadrature_degree={degree}")
+
+
+def patch(size_mm: float, degree: int = 16) -> tuple:
+    """The resolved contact patch (issue 23): the shipped 16 x 1 x 1 x 1 half model away from the
+    tip, a 2 mm tip zone from the free end and the rim band 3 <= z <= 5 mm (where the free edge
+    crosses the coin's rim) in ``size_mm`` elements; ``degree`` 16 = 9 x 9 Gauss contact points
+    per facet (8: 5 x 5); the shipped 1/720 s step and the table."""
+    n = round(2.0 / size_mm)
+    return ("mesh.tip_zone_m=0.002", f"mesh.tip_zone_divisions={n}", "mesh.rim_band_m=[0.003,0.005]",
+            f"mesh.rim_band_divisions={n}", f"contact.quadrature_degree={degree}")
+
+
+#: the reference ladder: the resolved patch at 1 / 0.5 / 0.25 mm, 9 x 9 Gauss points per contact
+#: facet (points ~0.11 / 0.06 / 0.03 mm apart)
+PATCH_SIZES_MM = (1.0, 0.5, 0.25)
+REFERENCE = {f"patch-{h:g}mm-9x9": patch(h) for h in PATCH_SIZES_MM}
+REFERENCE_RATIOS = (PATCH_SIZES_MM[0] / PATCH_SIZES_MM[1], PATCH_SIZES_MM[1] / PATCH_SIZES_MM[2])
+REFERENCE_ORDER = tuple(REFERENCE)
+#: the contact rule on the patch levels: 5 x 5 against the ladder's 9 x 9
+PATCH_RULE = {f"patch-{h:g}mm-5x5": patch(h, 8) for h in PATCH_SIZES_MM[:2]}
+
+#: the uniform ladder that was the reference before issue 23 (no tip zone; it oscillates because
+#: one point per facet row decides the contact, docs/fem_accuracy.md): half model, in plane
+#: x 1.5 then x 4/3, 2 elements per layer, 5 x 5 Gauss points, a 1/180 s cap
+REF_DT = "time.dt_max_s=0.0055555555555556"
+LADDER = ((16, 8), (24, 12), (32, 16))
+#: coarser levels of the same family (12 x 6 departs from the others by a stick episode)
+EXTRA_LEVELS = ((8, 4), (12, 6))
+
+
+def ladder(levels) -> dict:
+    """The uniform ladder's cases: half model, n x w in plane, 2 elements per layer, 5 x 5 Gauss points, 1/180 s."""
+    return {f"ref-{n}x{w}x2x2": (*HALF, *UMF, *mesh(n, w, 2, 2), *quad("gauss", 8), REF_DT) for n, w in levels}
+
+
+UNIFORM = ladder(LADDER)
+LEVELS = ladder(EXTRA_LEVELS)
+DT = {"dt-16x8x2x2-720": (*HALF, *UMF, *mesh(16, 8, 2, 2), *quad("gauss", 8))}
+#: the shipped default, and the same with its contact rule doubled (5 x 5 -> 9 x 9)
+SHIPPED = {"shipped": (), "shipped-9x9": quad("gauss", 16)}
+
+QUADRATURE = {f"q-{n}x{w}-{rule}{deg}": (*HALF, *UMF, *mesh(n, w), *quad(rule, deg))
+              for n, w in ((16, 2), (16, 4), (32, 4))
+              for rule, deg in (("gauss", 4), ("gauss", 8), ("gauss_lobatto", 4), ("gauss_lobatto", 8))}
+
+FRICTION = {f"eps-{n}x{w}-{eps:g}": (*HALF, *UMF, *mesh(n, w), f"contact.slip_rate_regularisation_m_s={eps}")
+            for n, w in ((16, 2), (16, 4)) for eps in (1e-4, 1e-5, 1e-6)}
+
+#: meshes and rules for the shipped default (the cases that ran before the scene's rule
+#: changed to 5 x 5 Gauss pin the 3 x 3 they ran with, so their names stay true)
+G4 = quad("gauss", 4)
+CANDIDATES = {
+    "old-default": OLD_DEFAULT,
+    "shipped": (),                                                   # the scene as shipped
+    "half-16x2": (*HALF, *UMF, *G4),
+    "half-16x4": (*HALF, *UMF, *mesh(16, 4), *G4),
+    "half-16x4-lob4": (*HALF, *UMF, *mesh(16, 4), *quad("gauss_lobatto", 4)),
+    "half-12x4-g2-lob4": (*HALF, *UMF, *mesh(12, 4), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x4-g2-lob4": (*HALF, *UMF, *mesh(16, 4), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x4x2x1-lob4": (*HALF, *UMF, *mesh(16, 4, 2, 1), *quad("gauss_lobatto", 4)),
+    "half-24x6-lob4": (*HALF, *UMF, *mesh(24, 6), *quad("gauss_lobatto", 4)),
+    "half-12x4-g2": (*HALF, *UMF, *mesh(12, 4), "mesh.x_grading=2.0", *G4),
+    "half-12x4-g2-g8": (*HALF, *UMF, *mesh(12, 4), "mesh.x_grading=2.0", *quad("gauss", 8)),
+    "half-16x4-g2": (*HALF, *UMF, *mesh(16, 4), "mesh.x_grading=2.0", *G4),
+    "half-10x4-g2-lob4": (*HALF, *UMF, *mesh(10, 4), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-12x6-g2-lob4": (*HALF, *UMF, *mesh(12, 6), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x2-lob4": (*HALF, *UMF, *quad("gauss_lobatto", 4)),
+    "half-16x2-lob3": (*HALF, *UMF, *quad("gauss_lobatto", 3)),
+    "half-16x2-g2-lob4": (*HALF, *UMF, "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-12x2-g2-lob4": (*HALF, *UMF, *mesh(12, 2), "mesh.x_grading=2.0", *quad("gauss_lobatto", 4)),
+    "half-16x4-lob3": (*HALF, *UMF, *mesh(16, 4), *quad("gauss_lobatto", 3)),
+    "half-12x2-g8": (*HALF, *UMF, *mesh(12, 2), *quad("gauss", 8)),
+    "half-12x2-g2-g8": (*HALF, *UMF, *mesh(12, 2), "mesh.x_grading=2.0", *quad("gauss", 8)),
+    "half-16x2-g2-g8": (*HALF, *UMF, "mesh.x_grading=2.0", *quad("gauss", 8)),
+    "half-12x6-g8": (*HALF, *UMF, *mesh(12, 6), *quad("gauss", 8)),
+    "half-12x6x2x2-g8": (*HALF, *UMF, *mesh(12, 6, 2, 2), *quad("gauss", 8)),
+    "half-16x6-g8": (*HALF, *UMF, *mesh(16, 6), *quad("gauss", 8)),
+    "half-16x10-g8": (*HALF, *UMF, *mesh(16, 10), *quad("gauss", 8)),
+}
+
+STUDIES = {"reference": REFERENCE, "patch-rule": PATCH_RULE, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED}
+
+
+def mpirun_env() -> dict:
+    """The environment for ``mpirun`` here (as root in a container, more ranks than cores allowed)."""
+    return dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+                OMPI_MCA_rmaps_base_oversubscribe="1")
+
+
+def solve(out: Path, name: str, overrides, extra=(), ranks: int = 1) -> Path:
+    """Run one case unless its dataset exists; returns the dataset path. ``ranks`` > 1 splits
+    the one mesh over MPI ranks (the solver then factorises with MUMPS, whatever the scene's
+    serial package: the resolved scene, and so the resume check, is the same)."""
+    path = out / name / "C3.nc"
+    if dataset.is_complete(path, resolved_scene((*overrides, *extra))):
+        return path               # made with this case's resolved scene: a changed default re-runs it
+    cmd = [sys.executable, "-m", "deapull.workflows", "solve", "--scene", "coin_pull", "--setup", "C3",
+           "--out", str(out / name)]
+    env = None
+    if ranks > 1:
+        cmd, env = ["mpirun", "-n", str(ranks), *cmd], mpirun_env()
+    for o in (*overrides, *extra):
+        cmd += ["--set", o]
+    log.info("%s: %s", name, " ".join(cmd[cmd.index("-m") + 2:]))
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        raise RuntimeError(f"case {name} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    log.info("%s: done in %.0f s", name, time.perf_counter() - start)
+    return path
+
+
+def resolved_scene(overrides) -> str:
+    """The case's resolved scene as TOML (what its dataset's ``scene_toml`` records)."""
+    return scenes.load("coin_pull", setup="C3", overrides=overrides).to_toml()
+
+
+def columns(path: Path) -> dataset.Run:
+    return dataset.read(path, ("t", "x", "newton_iterations", "penetration_m"),
+                        optional=("penetration_qp_m", "n_contact", "table_penetration_m"))
+
+
+#: safety factor of the grid convergence index over three grids (Roache; Celik et al. 2008)
+GCI_SAFETY = 1.25
+
+
+def richardson(travels, ratios):
+    """Observed order p, extrapolated value and the finest level's error bound from three
+    levels h1 > h2 > h3 with refinement ratios r21 = h1/h2, r32 = h2/h3 (unequal ratios allowed;
+    the GCI procedure of Celik et al. (2008), J. Fluids Eng. 130).
+
+    The bound is the grid convergence index of the finest level, GCI_SAFETY × |f_ext − f3|.
+    When the three levels do not converge monotonically (the differences change sign or one
+    is zero), or no order in (0, 20] fits them, there is no order: p is NaN, the estimate is
+    f3 and the bound the larger of the two differences.
+    """
+    f1, f2, f3 = travels
+    r21, r32 = ratios
+    e21, e32 = f2 - f1, f3 - f2
+    if e21 == 0 or e32 == 0 or e21 * e32 < 0:
+        return float("nan"), f3, max(abs(e21), abs(e32))
+    # f_i = f + C h_i^p gives e21 / e32 = r32^p (r21^p − 1) / (r32^p − 1): solve for p by bisection
+    def g(p):
+        return math.log(abs(e21 / e32)) - p * math.log(r32) - math.log((r21 ** p - 1) / (r32 ** p - 1))
+    lo, hi = 1e-3, 20.0
+    if g(lo) * g(hi) > 0:
+        return float("nan"), f3, max(abs(e21), abs(e32))
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if g(lo) * g(mid) > 0 else (lo, mid)
+    p = 0.5 * (lo + hi)
+    extrap = f3 + e32 / (r32 ** p - 1)
+    return p, extrap, GCI_SAFETY * abs(extrap - f3)
+
+
+def reference_summary(out: Path) -> dict:
+    runs = [columns(out / n / "C3.nc") for n in REFERENCE_ORDER]
+    travels = [float(np.max(np.abs(r.columns["x"]))) for r in runs]
+    p, extrap, bound = richardson(travels, REFERENCE_RATIOS)
+    fine = runs[-1]
+    t = fine.columns["t"]
+    mae = [float(np.mean(np.abs(np.interp(t, r.columns["t"], r.columns["x"]) - fine.columns["x"])))
+           for r in runs[:-1]]
+    dofs = [int(r.attrs["mesh_dofs"]) for r in runs]
+    eps = float(fine.attrs["contact_slip_rate_reg_m_s"])
+    active = [int(np.median(r.columns["n_contact"])) for r in runs]
+    what, bound_is = (("Richardson travel", f"observed order {p:.2f}") if math.isfinite(p) else
+                      ("finest level (the levels do not converge monotonically, no Richardson estimate)",
+                       "bound: the larger level difference"))
+    label = (f"{what} of the resolved-patch ladder {' / '.join(f'{h:g}' for h in PATCH_SIZES_MM)} mm (coin_pull C3 "
+             f"with the table, half model, dofs {' / '.join(f'{d:,}' for d in dofs)}; 9 x 9 Gauss contact points, "
+             f"{' / '.join(map(str, active))} active at the median step; 1/720 s, eps_v {eps:g} m/s), "
+             f"{bound_is}; x(t) of the finest level")
+    return {"cases": list(REFERENCE_ORDER), "travel_m": travels, "dofs": dofs, "median_active_contact_points": active,
+            "wall_s": [float(r.attrs["wall_time_total_s"]) for r in runs], "observed_order": p,
+            "travel_extrapolated_m": extrap, "travel_error_bound_m": bound,
+            "travel_error_bound_rel": bound / travels[-1], "x_mae_vs_finest_m": mae,
+            "label": label,
+            "travel_ref_m": extrap,
+            "error_bound_rel": bound / travels[-1],
+            "slip_rate_reg_m_s": eps,
+            "finest": str(out / REFERENCE_ORDER[-1] / "C3.nc")}
+
+
+def compare(out: Path, names, ref: dict, fine: dataset.Run) -> list[dict]:
+    """One row per case: cost, travel error against the reference's travel, x(t) MAE against
+    the finest level's x(t) (``fine``), penetrations and active contact points."""
+    t_ref, x_ref = fine.columns["t"], fine.columns["x"]
+    travel_ref = ref["travel_extrapolated_m"]
+    rows = []
+    for name in names:
+        r = columns(out / name / "C3.nc")
+        x = r.columns["x"]
+        travel = float(np.max(np.abs(x)))
+        mae = float(np.mean(np.abs(np.interp(t_ref, r.columns["t"], x) - x_ref)))
+        qp, nc = r.columns.get("penetration_qp_m"), r.columns.get("n_contact")
+        rows.append({"case": name, "dofs": int(r.attrs["mesh_dofs"]), "points": len(x),
+                     "wall_s": float(r.attrs["wall_time_total_s"]),
+                     "newton_its": int(np.sum(r.columns["newton_iterations"])), "travel_mm": travel * 1e3,
+                     "travel_err_pct": 100 * (travel / travel_ref - 1), "x_mae_pct": 100 * mae / travel_ref,
+                     "active_points": int(np.median(nc)) if nc is not None else -1,
+                     "pen_nodes_um": 1e6 * float(np.max(r.columns["penetration_m"])),
+                     "pen_qp_um": 1e6 * float(np.max(qp)) if qp is not None else float("nan")})
+    return rows
+
+
+TABLE = (("case", "case", ""), ("dofs", "dofs", "d"), ("points", "points", "d"), ("wall s", "wall_s", ".1f"),
+         ("Newton its", "newton_its", "d"), ("travel mm", "travel_mm", ".4f"), ("travel err %", "travel_err_pct", "+.2f"),
+         ("x(t) MAE %", "x_mae_pct", ".2f"), ("contact points (median)", "active_points", "d"),
+         ("max pen. nodes µm", "pen_nodes_um", ".2f"), ("max pen. points µm", "pen_qp_um", ".2f"))
+
+
+def ladder_table(ref: dict) -> str:
+    """The reference's convergence table (its levels: dofs, active contact points, travel, the
+    change from the level before, wall time) and its order and bound, as text."""
+    travels = ref.get("travel_m") or []
+    active = ref.get("median_active_contact_points") or [None] * len(travels)
+    lines = [f"{'reference level':24s} {'dofs':>7s} {'contact pts':>11s} {'travel mm':>10s} {'vs previous':>11s} "
+             f"{'wall s':>8s}"]
+    for i, (case, dofs, pts, travel, wall) in enumerate(zip(ref["cases"], ref["dofs"], active, travels, ref["wall_s"])):
+        change = f"{100 * (travel / travels[i - 1] - 1):+10.3f}%" if i else f"{'':>11s}"
+        lines.append(f"{case:24s} {dofs:7,d} {pts if pts is not None else '-':>11} {1e3 * travel:10.4f} {change} "
+                     f"{wall:8.0f}")
+    p = ref.get("observed_order", float("nan"))
+    what = f"observed order {p:.2f}, Richardson travel" if math.isfinite(p) else "no observed order; finest level"
+    lines.append(f"{what} {1e3 * ref['travel_extrapolated_m']:.4f} mm ± {1e3 * ref['travel_error_bound_m']:.4f} mm "
+                 f"({100 * ref['travel_error_bound_rel']:.2f} % of it; goal: a stated bound ≤ 1 %)")
+    return "\n".join(lines)
+
+
+def run_studies(studies, out: Path, reference: Path, cases=(), reference_ranks: int = 1) -> int:
+    """Run the studies' missing cases (resumes), then print the reference's convergence table
+    and every study's comparison against it. With ``reference`` among the studies the reference
+    is rebuilt from ``out`` (and written to ``out/reference/``, the folder ``bench/reference``
+    ships); otherwise ``reference`` (reference.json + C3_reference.nc) is the reference."""
+    chosen = {study: list(cases) or list(STUDIES[study]) for study in studies}
+    if "reference" not in studies and not (reference / "reference.json").is_file():
+        raise InputError(f"--reference {reference}: no reference.json there (the committed one is bench/reference/ "
+                         "in the source checkout; --study reference rebuilds it)")
+    for study in studies:
+        unknown = [c for c in chosen[study] if c not in STUDIES[study]]
+        if unknown:
+            raise InputError(f"--cases: {', '.join(unknown)} not in study {study!r} (its cases: "
+                             f"{', '.join(STUDIES[study])})")
+    for study in studies:
+        for name in chosen[study]:
+            solve(out, name, STUDIES[study][name], ranks=reference_ranks if study == "reference" else 1)
+    if "reference" in studies:
+        missing = [n for n in REFERENCE_ORDER
+                   if not dataset.is_complete(out / n / "C3.nc", resolved_scene(REFERENCE[n]))]
+        if missing:
+            print(f"reference incomplete: {', '.join(missing)} missing; run --study reference")
+            return 1
+        ref = reference_summary(out)
+        write_json(out / "reference.json", ref, indent=2)
+        reference = out / "reference"
+        write_json(reference / "reference.json", ref, indent=2)
+        atomic_write(reference / "C3_reference.nc", lambda tmp: shutil.copyfile(ref["finest"], tmp))
+    ref = json.loads((reference / "reference.json").read_text())
+    fine = columns(reference / "C3_reference.nc")
+    print(f"reference: {ref['label']}")
+    print(ladder_table(ref))
+    for study in studies:
+        rows = compare(out, chosen[study], ref, fine)
+        write_csv(out / f"{study}.csv", rows, [k for _, k, _ in TABLE])
+        table = markdown_table(rows, TABLE)
+        write_text(out / f"{study}.md", table + "\n")
+        print(f"\n{study} (errors against the reference travel {1e3 * ref['travel_extrapolated_m']:.4f} mm and "
+              f"the finest level's x(t))\n{table}")
+    return 0
+
+
+def add_arguments(ap) -> None:
+    ap.add_argument("--study", default="shipped",
+                    help=f"comma-separated studies, or all: {', '.join(STUDIES)} (default shipped: the shipped "
+                         "default and its rule doubled, against the committed reference; two runs)")
+    ap.add_argument("--out", default="out/fem_study", help="one folder per case; CSV and Markdown per study")
+    ap.add_argument("--reference", default="bench/reference",
+                    help="folder with reference.json and C3_reference.nc (default: the committed one)")
+    ap.add_argument("--cases", default="", help="comma-separated subset of the study's cases")
+    ap.add_argument("--reference-ranks", type=int, default=1,
+                    help="MPI ranks for each reference level (> 1: one mesh split over ranks, MUMPS); other "
+                         "studies run on one core")
+
+
+def studies_from(arg: str) -> list[str]:
+    """The ``--study`` list, checked before any run."""
+    studies = list(STUDIES) if arg == "all" else [s for s in arg.split(",") if s]
+    unknown = [s for s in studies if s not in STUDIES]
+    if unknown or not studies:
+        raise InputError(f"--study {arg!r}: unknown {', '.join(unknown) or 'empty'}; allowed: "
+                         f"{', '.join(STUDIES)} or all")
+    return studies
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_arguments(ap)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    try:
+        studies = studies_from(args.study)
+        return run_studies(studies, Path(args.out), Path(args.reference), [c for c in args.cases.split(",") if c],
+                           args.reference_ranks)
+    except InputError as e:
+        ap.error(str(e))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
