@@ -244,7 +244,8 @@ class DEAProblem:
         chosen package is serial."""
         chosen = self.scene.solver.linear_solver
         if self.comm.size > 1 and chosen not in PARALLEL_FACTOR_PACKAGES:
-            log.info("solver.linear_solver = %r is serial; using mumps on %d ranks", chosen, self.comm.size)
+            if self.comm.rank == 0:
+                log.info("solver.linear_solver = %r is serial; using mumps on %d ranks", chosen, self.comm.size)
             return "mumps"
         return chosen
 

@@ -70,8 +70,9 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
     sim = Simulation.from_scene(scene, mesh_dir=out_dir / "meshes" / name, comm=comm)
     mass_kg = sim.mass_kg
     problem = sim.problem()
-    log.info("%s: %d dofs on %d ranks, coin mass %s", name, problem.num_dofs(), comm.size,
-             f"{mass_kg * 1e3:.4f} g" if mass_kg else "-")
+    if comm.rank == 0:    # one mesh split over ranks: one line, not one per rank
+        log.info("%s: %d dofs on %d ranks, coin mass %s", name, problem.num_dofs(), comm.size,
+                 f"{mass_kg * 1e3:.4f} g" if mass_kg else "-")
     writer = FieldWriter(problem, out_dir / f"{name}_fields.xdmf", fields_every) if fields_every > 0 else None
     stepper = sim.stepper(problem, progress=progress, on_step=writer)
     try:
@@ -81,8 +82,9 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
             writer.close()
     wall = time.perf_counter() - start
     path = write_run(out_dir / f"{name}.nc", sim, problem, stepper, records, wall, name)
-    log.info("%s: %d points, coin travel %.3f mm, %.1f s -> %s", name, len(records),
-             coin_travel(records) * 1e3, wall, path)
+    if comm.rank == 0:
+        log.info("%s: %d points, coin travel %.3f mm, %.1f s -> %s", name, len(records),
+                 coin_travel(records) * 1e3, wall, path)
     return path
 
 

@@ -205,6 +205,11 @@ class Stepper:
         Fx, Fy = self.p.obstacle_forces_from_reaction()
         return force_balance_residual(prev, new, Fx, Fy, dt, self.mass_kg, sc.coin.mu_b, sc.gravity_m_s2)
 
+    def _info(self, *args) -> None:
+        """log.info on rank 0 of the solve's communicator (one mesh split over ranks logs once)."""
+        if self.p.comm.rank == 0:
+            log.info(*args)
+
     def _record(self, t, V, dt, its, coupling_its, cutbacks, wall, forces, residual) -> StepRecord:
         """The record of the state just solved (forces from the solve, before accept())."""
         p = self.p
@@ -327,8 +332,8 @@ class Stepper:
                 if saved is None:
                     saved = self._save()
                 cutbacks, fails = cutbacks + 1, fails + 1
-                log.info("t = %.6g s, dt = %.3g s: %s after %d Newton iterations; cutting back",
-                         t_end - step, step, reason, k_its)
+                self._info("t = %.6g s, dt = %.3g s: %s after %d Newton iterations; cutting back",
+                           t_end - step, step, reason, k_its)
                 h = step * ts.cutback
                 if fails > ts.max_cutbacks or h < ts.dt_min_s:
                     self._rollback(saved, coin0, dt_prev0, dV_prev0)
@@ -382,8 +387,8 @@ class Stepper:
             ok, reason = self._continuous(tip_before, reason)
         if ok or self.line_search == LINE_SEARCH_RETRY:
             return ok, reason, its, cits, coin, forces
-        log.info("t = %.6g s, dt = %.3g s: %s with full Newton steps; retrying with a line search",
-                 self.t, step, reason)
+        self._info("t = %.6g s, dt = %.3g s: %s with full Newton steps; retrying with a line search",
+                   self.t, step, reason)
         self.p.restore()
         self.p.predict(ratio)
         self._set_line_search(LINE_SEARCH_RETRY)
@@ -446,7 +451,7 @@ class Stepper:
                 continue
             self.p.w.x.array[:] = good
             step /= 4
-            log.info("%s x %.4g: %s; continuation step cut to %.3g", what, scale, reason, step)
+            self._info("%s x %.4g: %s; continuation step cut to %.3g", what, scale, reason, step)
             if step < PLACEMENT_MIN_STEP:
                 raise SolveFailed(0.0, V, f"{what} x {scale:g}: {reason}", -1, self.records)
         return its, cits, forces
