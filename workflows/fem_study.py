@@ -30,7 +30,7 @@ from deapull import dataset, scene as scenes
 from deapull.errors import InputError
 from deapull.io import atomic_write, markdown_table, write_csv, write_json, write_text
 
-log = logging.getLogger("fem_study")
+log = logging.getLogger(__name__)
 
 HALF = ("mesh.symmetry='half_z'",)
 #: the default before issue 12 (as bench/bench_fem.py pins it)
@@ -60,14 +60,17 @@ def patch(size_mm: float, degree: int = 16) -> tuple:
             f"mesh.rim_band_divisions={n}", f"contact.quadrature_degree={degree}")
 
 
-#: the reference ladder: the resolved patch at 1 / 0.5 / 0.25 mm, 9 x 9 Gauss points per contact
-#: facet (points ~0.11 / 0.06 / 0.03 mm apart)
-PATCH_SIZES_MM = (1.0, 0.5, 0.25)
+#: the reference ladder: the resolved patch at 2 / 1 / 0.5 mm, 9 x 9 Gauss points per contact
+#: facet (points ~0.22 / 0.11 / 0.06 mm apart). The 0.25 mm level (16,260 dofs) is the study
+#: ``patch-fine``: serial UMFPACK spent > 5 min in its placement alone here, so it is left to a
+#: bigger machine (``--reference-ranks``).
+PATCH_SIZES_MM = (2.0, 1.0, 0.5)
 REFERENCE = {f"patch-{h:g}mm-9x9": patch(h) for h in PATCH_SIZES_MM}
 REFERENCE_RATIOS = (PATCH_SIZES_MM[0] / PATCH_SIZES_MM[1], PATCH_SIZES_MM[1] / PATCH_SIZES_MM[2])
 REFERENCE_ORDER = tuple(REFERENCE)
+PATCH_FINE = {"patch-0.25mm-9x9": patch(0.25)}
 #: the contact rule on the patch levels: 5 x 5 against the ladder's 9 x 9
-PATCH_RULE = {f"patch-{h:g}mm-5x5": patch(h, 8) for h in PATCH_SIZES_MM[:2]}
+PATCH_RULE = {f"patch-{h:g}mm-5x5": patch(h, 8) for h in PATCH_SIZES_MM}
 
 #: the uniform ladder that was the reference before issue 23 (no tip zone; it oscillates because
 #: one point per facet row decides the contact, docs/fem_accuracy.md): half model, in plane
@@ -128,7 +131,7 @@ CANDIDATES = {
     "half-16x10-g8": (*HALF, *UMF, *mesh(16, 10), *quad("gauss", 8)),
 }
 
-STUDIES = {"reference": REFERENCE, "patch-rule": PATCH_RULE, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED}
+STUDIES = {"reference": REFERENCE, "patch-rule": PATCH_RULE, "patch-fine": PATCH_FINE, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED}
 
 
 def mpirun_env() -> dict:

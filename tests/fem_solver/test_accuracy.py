@@ -204,3 +204,25 @@ def test_x_grading_puts_the_small_elements_at_the_free_end(tmp_path):
     assert lengths[-1] / lengths[0] == pytest.approx(8.0, rel=1e-6)    # clamp / tip
     assert np.all(np.diff(lengths) > 0)
     assert tip_element_length(sc) == pytest.approx(lengths[0], rel=1e-6)  # the tip element
+
+
+# --- the active-point guard --------------------------------------------------------------
+
+@pytest.mark.parametrize("need", [20, 1])
+def test_steps_with_fewer_contact_points_than_the_scene_asks_are_counted_and_warned(tmp_path, caplog, need):
+    # a coarse tiny C3 for 0.02 s: 1-4 points carry the coin at every step (the shipped 16 x 1
+    # mesh has the same); the guard's count must equal the steps whose own n_contact is below
+    sc = scenes.load("coin_pull", setup="C3", overrides=(*TINY_C3, "load.end_time_s=0.02",
+                                                         f"contact.min_active_points={need}"))
+    with caplog.at_level("WARNING", logger="deapull.fem_solver.stepping"):
+        ds = xr.open_dataset(solve_scene(sc, tmp_path / "run", progress=False))
+    n = ds["n_contact"].values
+    assert n.max() > 0
+    below = int(np.count_nonzero((n > 0) & (n < need)))
+    assert int(ds.attrs["contact_steps_below_min_points"]) == below
+    warned = [r.getMessage() for r in caplog.records if "contact point(s) carry" in r.getMessage()]
+    if need == 20:
+        assert below == len(n) and len(warned) == 1 and f"min_active_points = {need}" in warned[0]
+        assert any(f"{below} of {len(n)} steps had fewer" in r.getMessage() for r in caplog.records)
+    else:
+        assert below == 0 and not warned
