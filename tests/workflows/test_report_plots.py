@@ -1,5 +1,6 @@
-"""The report's error-against-run-time plot: the points come from the result files and nowhere
-else, a diverged model never gets a finite error."""
+"""The report's error-against-run-time plot and the control bands: the points come from the
+result files and nowhere else, a diverged model never gets a finite error, the bands are
+numpy's percentiles of the episodes."""
 import csv
 import json
 
@@ -7,7 +8,7 @@ import numpy as np
 
 from deapull.io import write_csv
 from deapull.workflows import report
-from deapull.workflows.report import plots, sections_error_time
+from deapull.workflows.report import plots, sections_control, sections_error_time
 
 
 def _fidelity(inputs, rows):
@@ -95,3 +96,31 @@ def test_a_diverged_model_gets_no_finite_point(tmp_path):
     row = next(r for r in _read(out / "tables" / "error-time-points.csv") if r["label"] == "f (paper's law)")
     assert row["error_pct"] == "" and row["status"].startswith("diverged")
 
+
+def _traces():
+    """Two policies, episodes of different lengths (a finished episode is held at its end)."""
+    rng = np.random.default_rng(3)
+    eps = {"mpc": [rng.normal(size=n).cumsum() * 1e-4 for n in (5, 9, 7, 9)],
+           "pd": [rng.normal(size=n).cumsum() * 1e-4 for n in (12, 4, 12)]}
+    arrays = {f"{pol}|surrogate:C2|0.001|{k}|x_m": x for pol, xs in eps.items() for k, x in enumerate(xs)}
+    arrays["mpc|surrogate:C2|0.001|0|V_V"] = np.zeros(5)
+    return eps, arrays
+
+
+def test_the_bands_are_numpys_percentiles_of_the_episodes(tmp_path):
+    eps, arrays = _traces()
+    np.savez(tmp_path / "traces.npz", **arrays)
+    panels = sections_control.trace_bands(tmp_path / "traces.npz")
+    assert list(panels) == [("surrogate:C2", 0.001)]
+    for pol, xs in eps.items():
+        n = max(len(x) for x in xs)
+        held = 1e3 * np.array([np.concatenate([x, np.full(n - len(x), x[-1])]) for x in xs])
+        b = panels[("surrogate:C2", 0.001)][pol]
+        for q in (10, 50, 90):
+            np.testing.assert_allclose(b[f"p{q}"], np.percentile(held, q, axis=0), rtol=1e-12, atol=0)
+        assert b["episodes"] == len(xs)
+        assert list(b["running"]) == [sum(len(x) > i for x in xs) for i in range(n)]
+    rows = sections_control.band_rows(panels, max_rows=4)
+    mpc = [r for r in rows if r["policy"] == "mpc"]
+    assert [r["iteration"] for r in mpc] == [0, 3, 6, 8]           # every 3rd and the last
+    assert mpc[-1]["x_p50_mm"] == panels[("surrogate:C2", 0.001)]["mpc"]["p50"][8]

@@ -5,6 +5,7 @@ import math
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -146,3 +147,45 @@ def _not_run_note(ax, rows, what, extra=()) -> None:
         ax.text(0.02, 0.02, "\n".join(lines), transform=ax.transAxes, fontsize=7, color="0.35", va="bottom",
                 bbox=dict(facecolor="white", edgecolor="0.8", alpha=0.9))
 
+
+#: the band of the control figure: these percentiles across the episodes, the line their middle
+BAND_PERCENTILES = (10, 50, 90)
+
+
+def plot_bands(panels: dict, png: Path, target_mm: float | None = None, tolerance_mm: float | None = None) -> Path:
+    """Fig. 6 of the paper, with percentiles: a grid of plants (rows) × noise levels (columns), per
+    policy the coin's x over the iterations, median line and 10–90 % band across the episodes.
+    ``panels``: {(plant, noise): {policy: {"p10", "p50", "p90": arrays in mm, "episodes": n}}}."""
+    plants = list(dict.fromkeys(p for p, _ in panels))
+    noises = sorted({n for _, n in panels})
+    policies = list(dict.fromkeys(pol for by in panels.values() for pol in by))
+    fig, axes = plt.subplots(len(plants), len(noises), figsize=(4.2 * len(noises), 3.2 * len(plants)),
+                             squeeze=False, sharex=True, sharey=True)
+    lo, mid, hi = (f"p{q}" for q in BAND_PERCENTILES)
+    for i, plant in enumerate(plants):
+        for j, noise in enumerate(noises):
+            ax = axes[i, j]
+            for policy, b in panels.get((plant, noise), {}).items():
+                colour = f"C{policies.index(policy) % 10}"
+                t = np.arange(len(b[mid]))
+                ax.plot(t, b[mid], color=colour, lw=1.3, label=f"{policy} ({b['episodes']} ep.)")
+                ax.fill_between(t, b[lo], b[hi], color=colour, alpha=0.2, lw=0)
+            if target_mm is not None:
+                ax.axhline(target_mm, color="k", lw=0.8, ls="--")
+                if tolerance_mm:
+                    ax.axhspan(target_mm - tolerance_mm, target_mm + tolerance_mm, color="0.85", zorder=0)
+            ax.set_xscale("symlog", linthresh=10)
+            ax.grid(alpha=0.3)
+            ax.set_title(f"{plant}, noise {noise:g} m", fontsize=9)
+            if j == 0:
+                ax.set_ylabel("coin x [mm]")
+            if i == len(plants) - 1:
+                ax.set_xlabel("iteration (Δt = 1 ms; symlog)")
+            if (plant, noise) in panels:
+                ax.legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"Coin position per policy: median and {BAND_PERCENTILES[0]}–{BAND_PERCENTILES[2]} % band across "
+                 "the episodes (finished episodes held at their last position); dashed: the target", fontsize=9)
+    fig.tight_layout()
+    atomic_write(png, lambda p: fig.savefig(p, dpi=100, format="png"), suffix=".png")
+    plt.close(fig)
+    return png
