@@ -63,7 +63,7 @@ def draw_error_time(points: list[dict], control: list[dict]):
     edge with the word, references with error 0 on the bottom edge, inputs not run in grey text."""
     from matplotlib.lines import Line2D
     from matplotlib.transforms import blended_transform_factory
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5.8), gridspec_kw={"width_ratios": [1.35, 1]})
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6.4), gridspec_kw={"width_ratios": [1.35, 1]})
     edge = blended_transform_factory(ax.transData, ax.transAxes)
     walls = [p["wall_s"] for p in points if _finite_pos(p["wall_s"])]
     for p in points:
@@ -105,7 +105,7 @@ def draw_error_time(points: list[dict], control: list[dict]):
     handles += [Line2D([], [], color="k", marker="o", ls="none", label="x(t) MAE (filled)"),
                 Line2D([], [], color="k", marker="o", mfc="none", ls="none", label="travel error (open)"),
                 Line2D([], [], color="k", marker="v", ls="none", label="the reference's error bound")]
-    ax.legend(handles=handles, fontsize=7, loc="lower right")
+    ax.legend(handles=handles, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=4)
     _not_run_note(ax, [p for p in points if p["status"] == "not run"], lambda p: p["group"])
 
     policies = list(dict.fromkeys(c["policy"] for c in control if c["status"] != "not run"))

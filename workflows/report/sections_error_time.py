@@ -65,7 +65,8 @@ def fidelity_points(path: Path) -> list[dict]:
         group = "FEM ladder" if r.get("kind", "fem") in ("", "fem") else "surrogate on the ladder"
         label, wall = r.get("case", ""), num(r, "wall_s")
         if r.get("status", "ok") != "ok":
-            out.append(_point(group, label, "", wall, None, f"failed: {r.get('reason', '')}".strip(), "", path))
+            reason = r.get("reason", "")
+            out.append(_point(group, label, "", wall, None, f"failed: {reason}" if reason else "failed", "", path))
             continue
         if _true(r.get("is_reference")):
             out.append(_point(group, label, "", wall, 0.0, "reference (the errors are against it)", "", path))
