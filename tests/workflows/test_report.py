@@ -101,7 +101,9 @@ def test_report_from_partial_outputs_names_what_is_missing(tmp_path):
         assert 0 < v_cone <= v_t <= 400
     _png_ok(out / "img" / "sweep.png")
     page = _parse(out / "index.html")
-    assert page.imgs == ["img/sweep.png"]
+    # the error-against-run-time figure is drawn even so: the committed reference's levels, and the
+    # studies not run named on it
+    assert page.imgs == ["img/sweep.png", "img/error_time.png"]
     assert not page.external
     assert json.loads((out / "report.json").read_text())["missing"] == ALL_STEPS
 
@@ -129,6 +131,7 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     for img in page.imgs:
         assert (out / img).is_file() and (out / img).stat().st_size > 0, img
     assert "img/control_position_surrogate_C2_noise0.001.png" in page.imgs
+    assert "img/control_bands.png" in page.imgs and "img/error_time.png" in page.imgs
     assert re.search(r'<tr id="stab-baseline">', html) and re.search(r'<tr id="fid-ref">', html)
     assert "mpc.pytorch" in html
     # the FEM closed loop: counted from its CSV (one of the two fake episodes settled)
@@ -230,6 +233,8 @@ def _fake_studies(inputs: report.Inputs) -> None:
     write_csv(inputs.control / "control.csv", episodes, list(episodes[0]))
     (inputs.control / "run.json").write_text(json.dumps({"git_commit": "fedcba9876543210"}))
     (inputs.control / "table.md").write_text("| policy | reached |\n|---|---|\n| mpc | 3/3 |\n| pd | 3/3 |\n")
+    np.savez(inputs.control / "traces.npz", **{f"{e['policy']}|{e['plant']}|{e['noise_std_m']:g}|{e['episode']}|x_m":
+                                              np.linspace(0, -1e-3, 20 + 5 * e["episode"]) for e in episodes})
     for noise in ("0", "0.001"):
         _png(inputs.control / f"position_surrogate_C2_noise{noise}.png")
     fem = [dict(policy="mpc", plant=f"fem:C{c}", noise_std_m=1e-4, setpoints_mm="-1", iterations_per_setpoint="900",
@@ -536,7 +541,12 @@ def test_the_standalone_page_carries_its_images_and_tables_inline(tmp_path):
     assert all(h.startswith("data:") for h in hrefs), [h[:40] for h in hrefs if not h.startswith("data:")]
     n_tables = index.count("<table")
     files = re.findall(r'<a href="(tables/[^"]+\.csv)"', index)
-    assert len(files) == n_tables == alone.count("data:text/csv;base64,")
+    # every table's CSV, and the numbers behind the figures drawn from data (error against run
+    # time: its two panels; the control bands)
+    figure_data = ["tables/control-bands.csv", "tables/error-time-points.csv", "tables/error-time-control.csv"]
+    assert [f for f in files if f in figure_data] == figure_data
+    assert len(files) == n_tables + len(figure_data) == alone.count("data:text/csv;base64,")
+    assert all((out / f).is_file() for f in files)
     first = re.search(r'<table[^>]*>.*?</table>', index, re.S).group(0)
     with open(out / files[0], newline="") as f:
         rows = list(_csv.reader(f))

@@ -23,7 +23,7 @@ The modules, one job each:
 * :mod:`.assemble` — the sections in page order (:data:`assemble.SECTIONS`, the one place a section
   is registered) and the build;
 * ``sections_*`` — the sections, one function ``f(rep) -> Section`` each (FEM, surrogates,
-  control, and the page's summary and provenance);
+  control, error against run time, and the page's summary and provenance);
 * :mod:`.render` — HTML and Markdown; :mod:`.plots`, :mod:`.pictures` — the figures drawn here;
 * :mod:`.tabular` — reading CSV and Markdown tables, formatting numbers; :mod:`.versions` —
   package versions and the machine; :mod:`.check` — the page in a real browser.

@@ -11,7 +11,8 @@ from tqdm import tqdm
 from deapull import provenance
 from deapull.errors import InputError
 from deapull.io import write_json, write_text
-from deapull.workflows.report import sections_control, sections_fem, sections_page, sections_surrogates
+from deapull.workflows.report import (sections_control, sections_error_time, sections_fem, sections_page,
+                                     sections_surrogates)
 from deapull.workflows.report.document import Report
 from deapull.workflows.report.inputs import STEPS, Inputs
 from deapull.workflows.report.render import render_html, render_markdown, table_csv, table_files
@@ -30,7 +31,8 @@ SECTIONS = (("model", sections_fem.section_model),
             ("surrogates", sections_surrogates.section_surrogates),
             ("protocols", sections_surrogates.section_protocols),
             ("control", sections_control.section_control),
-            ("control-fem", sections_control.section_control_fem))
+            ("control-fem", sections_control.section_control_fem),
+            ("error-time", sections_error_time.section_error_time))
 FIRST = sections_page.section_summary
 LAST = sections_page.section_provenance
 TITLE = "deapull: reproduction report of Lahariya et al., IROS 2022"
@@ -68,6 +70,8 @@ def build(out, inputs: Inputs, frames: int = 30, progress: bool = True) -> dict:
         for block in s.blocks:
             if block[0] == "table":
                 write_text(tables / names[id(block[1])], table_csv(block[1]))
+            elif block[0] == "data":                 # the numbers behind a figure
+                write_text(tables / block[1], block[2])
     index = write_text(out / "index.html", render_html(rep, TITLE, LEAD))
     standalone = write_text(out / "report_standalone.html", render_html(rep, TITLE, LEAD, standalone=True))
     md = write_text(out / "report.md", render_markdown(rep, TITLE, LEAD))

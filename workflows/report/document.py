@@ -49,6 +49,11 @@ class Section:
     def bullets(self, items) -> None:
         self.blocks.append(("ul", list(items)))
 
+    def data(self, name: str, csv_text: str, label: str) -> None:
+        """Offer the numbers behind a figure as a CSV file (``tables/<section id>-<name>.csv`` beside
+        index.html, inline in the portable file), linked as ``label``."""
+        self.blocks.append(("data", f"{self.id}-{name}.csv", csv_text, label))
+
     def lack(self, what: str, step: str) -> None:
         self.missing.append((what, step))
         s = STEP[step]

@@ -16,6 +16,8 @@ SCENE = "coin_pull"
 SETUPS = tuple(f"C{i}" for i in range(1, 9))
 #: the coins `make excitation` plays the excitation protocols on
 EXCITATION_SETUPS = ("C1", "C3", "C5", "C7")
+#: the committed converged FEM reference (``make fem-study``: bench/fem_study.py --study reference)
+REFERENCE_JSON = Path(__file__).resolve().parents[2] / "bench" / "reference" / "reference.json"
 
 
 @dataclass(frozen=True)
@@ -32,6 +34,7 @@ class Inputs:
     bench_fem: Path = Path("out/bench_fem")
     excitation: Path = Path("data/excitation")
     protocols: Path = Path("out/protocols")
+    reference: Path = REFERENCE_JSON
 
     @classmethod
     def under(cls, out_root="out", data="data", **paths) -> "Inputs":
@@ -42,7 +45,7 @@ class Inputs:
                    "control": root / "control", "control_fem": root / "control_fem",
                    "bench_control": root / "bench_control",
                    "bench_fem": root / "bench_fem", "excitation": Path(data) / "excitation",
-                   "protocols": root / "protocols"}
+                   "protocols": root / "protocols", "reference": REFERENCE_JSON}
         default.update({k: Path(v) for k, v in paths.items() if v is not None})
         return cls(data=Path(data), **default)
 

@@ -107,6 +107,11 @@ def render_html(report: Report, title: str, lead: list[str], standalone: bool = 
                 src, alt = html.escape(src, quote=True), html.escape(block[2], quote=True)
                 parts.append(f'<figure><img src="{src}" alt="{alt}">'
                              f"<figcaption>{inline_html(block[2])}</figcaption></figure>")
+            elif kind == "data":
+                _, name, text, label = block
+                href = _data_uri(text.encode(), "text/csv") if standalone else f"tables/{name}"
+                parts.append(f'<p class="data"><a href="{html.escape(href, quote=True)}" download="{name}">'
+                             f"{inline_html(label)}</a></p>")
             elif kind == "missing":
                 _, what, step = block
                 parts.append(f'<div class="missing"><strong>Missing:</strong> {inline_html(what)}. Make it with '
@@ -151,6 +156,8 @@ def render_markdown(report: Report, title: str, lead: list[str]) -> str:
                 lines += [f"* {i}" for i in block[1]] + [""]
             elif kind == "img":
                 lines += [f"![{block[2]}]({block[1]})", "", f"*{block[2]}*", ""]
+            elif kind == "data":
+                lines += [f"[{block[3]}](tables/{block[1]})", ""]
             elif kind == "missing":
                 _, what, step = block
                 lines += [f"> **Missing:** {what}. Make it with `{step.make}` (runs `{step.command}`).", ""]

@@ -10,7 +10,13 @@ import numpy as np
 from deapull.paper import (CONTROL, CONTROL_NOISE_M, INFER_ERROR_PCT, INFER_MASS_ITERATIONS,
                            INFER_MU_B_ITERATIONS, MPC_S_PER_ITERATION)
 from deapull.workflows.report.document import Claim, Report, Section, Table
-from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
+from deapull.workflows.report.plots import BAND_PERCENTILES, plot_bands
+from deapull.workflows.report.tabular import csv_text, fmt, markdown_tables, num, read_csv
+
+#: the band CSV keeps every k-th iteration (and the last), k chosen so a line has at most this many rows
+BAND_CSV_ROWS = 250
+BAND_COLUMNS = ("plant", "noise_std_m", "policy", "iteration", "episodes", "running",
+                *(f"x_p{q}_mm" for q in BAND_PERCENTILES))
 
 
 def section_control(rep: Report) -> Section:
@@ -70,6 +76,7 @@ def section_control(rep: Report) -> Section:
             tables = markdown_tables(md.read_text())
             if tables:
                 sec.table(Table(*tables[0], caption="Per policy, plant and noise (`table.md` of the run)"))
+        _bands(rep, sec, inputs.control)
         for pattern, cap in (("position_*.png", "coin position, mean and 25–75 % band per policy (Fig. 6)"),
                              ("voltage_*.png", "voltage per policy"),
                              ("inferred_*.png", "inferred φ per iteration beside the true value")):
@@ -151,6 +158,78 @@ def section_control_fem(rep: Report) -> Section:
     for png in sorted(folder.glob("position_*.png")) + sorted((folder / "multi").glob("position_*.png")):
         sec.img(rep.copy_image(png, f"control_fem_{png.parent.name}_{png.name}"), f"`{png.stem}`: coin position.")
     return sec
+
+
+def bands(series: list) -> dict:
+    """Percentiles across episodes at every iteration (:data:`BAND_PERCENTILES`, ``p10`` ... keys);
+    an episode that finished early is held at its last value (as the run's own figures);
+    ``running``: how many episodes still ran at that iteration."""
+    n = max(len(s) for s in series)
+    held = np.stack([np.concatenate([s, np.full(n - len(s), s[-1])]) for s in series])
+    out = {f"p{q}": v for q, v in zip(BAND_PERCENTILES, np.percentile(held, BAND_PERCENTILES, axis=0))}
+    out["running"] = np.array([sum(len(s) > i for s in series) for i in range(n)])
+    out["episodes"] = len(series)
+    return out
+
+
+def trace_bands(path) -> dict:
+    """``traces.npz`` of ``deapull control`` (keys ``policy|plant|noise|episode|x_m``) as
+    {(plant, noise): {policy: bands of x in mm}}, plants and policies in the run's order."""
+    groups: dict = {}
+    with np.load(path, allow_pickle=False) as npz:
+        for key in npz.files:
+            parts = key.split("|")
+            if len(parts) != 5 or parts[4] != "x_m":
+                continue
+            policy, plant, noise, episode = parts[:4]
+            groups.setdefault((plant, float(noise)), {}).setdefault(policy, []).append(
+                (int(episode), 1e3 * np.asarray(npz[key], dtype=float)))
+    return {k: {pol: bands([x for _, x in sorted(eps, key=lambda e: e[0])]) for pol, eps in by.items()}
+            for k, by in groups.items()}
+
+
+def band_rows(panels: dict, max_rows: int = BAND_CSV_ROWS) -> list[dict]:
+    """The bands as CSV rows: every k-th iteration and the last (k so a line has ≤ ``max_rows``)."""
+    rows = []
+    for (plant, noise), by in panels.items():
+        for policy, b in by.items():
+            n = len(b["running"])
+            step = max(1, -(-n // max_rows))
+            for i in sorted(set(range(0, n, step)) | {n - 1}):
+                rows.append({"plant": plant, "noise_std_m": noise, "policy": policy, "iteration": i,
+                             "episodes": b["episodes"], "running": int(b["running"][i]),
+                             **{f"x_p{q}_mm": float(b[f"p{q}"][i]) for q in BAND_PERCENTILES}})
+    return rows
+
+
+def _bands(rep: Report, sec: Section, folder) -> None:
+    """The Fig. 6-style figure from the run's traces, with its CSV."""
+    path = folder / "traces.npz"
+    if not path.is_file():
+        sec.p(f"No per-episode traces (`{path}`): `make control` writes them; the bands per policy and noise "
+              "are drawn from them.")
+        return
+    rep.source(path, sec)
+    panels = trace_bands(path)
+    if not panels:
+        sec.p(f"`{path}` holds no coin positions (keys `policy|plant|noise|episode|x_m`).")
+        return
+    config = {}
+    run_json = folder / "run.json"
+    if run_json.is_file():
+        config = json.loads(run_json.read_text()).get("config") or {}
+    target = config.get("target_m") if not config.get("setpoints_m") else None
+    tol = config.get("tolerance_m")
+    plot_bands(panels, rep.img / "control_bands.png", 1e3 * target if target is not None else None,
+               1e3 * tol if tol else None)
+    lo, hi = BAND_PERCENTILES[0], BAND_PERCENTILES[-1]
+    sec.img("img/control_bands.png", f"The paper's Fig. 6 per plant (rows) and observation noise (columns): the "
+            f"coin's x per policy, median line and {lo}–{hi} % band across the episodes (an episode that finished is "
+            "held at its last position; the CSV's `running` column says how many still ran). The paper shows the "
+            "mean with a 25–75 % band on f_s,2 only.")
+    sec.data("bands", csv_text(band_rows(panels), BAND_COLUMNS),
+             f"CSV of the bands (x in mm: {lo} %, median, {hi} % per iteration; every k-th iteration and the last, "
+             f"at most {BAND_CSV_ROWS} rows per line)")
 
 
 def _fewer(ours, paper: str) -> str:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from pathlib import Path
@@ -11,6 +12,21 @@ def fmt(value, spec: str = ".3g", unit: str = "") -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
     return format(value, spec) + (f" {unit}" if unit else "")
+
+
+def csv_text(rows: list[dict], columns) -> str:
+    """Rows as CSV text with every number at full precision (None and NaN: empty cells)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(columns)
+    for r in rows:
+        cells = []
+        for c in columns:
+            v = r.get(c)
+            cells.append("" if v is None or (isinstance(v, float) and not math.isfinite(v)) else
+                         repr(v) if isinstance(v, float) else str(v))
+        writer.writerow(cells)
+    return buf.getvalue()
 
 
 def read_csv(path: Path) -> list[dict]:
