@@ -84,9 +84,9 @@ class TrainConfig:
 
     def __post_init__(self):
         if isinstance(self.restarts, bool) or not isinstance(self.restarts, int) or self.restarts < 1:
-            raise InputError(f"--restarts {self.restarts!r}: must be a whole number of at least 1 (the seeds "
-                             f"trained, {self.seed}, {self.seed}+1, ...; the one with the lowest validation "
-                             f"rollout error is kept)")
+            raise InputError(f"--restarts {self.restarts!r}: must be a whole number of at least 1 (how many seeds "
+                             f"to train from --seed {self.seed}; the one whose rollout of the validation setup has "
+                             f"the lowest x error is kept)")
         if self.kind not in KINDS:
             raise InputError(f"--model {self.kind!r} is not a model; choose one of {', '.join(KINDS)}")
         for name in ("epochs", "batch_size", "patience", "hidden", "layers", "window"):
