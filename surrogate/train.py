@@ -22,9 +22,8 @@ import copy
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field
-
 import warnings
+from dataclasses import asdict, dataclass, field
 
 import torch
 from tqdm import tqdm
