@@ -93,7 +93,7 @@ control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e
 		--out $(OUT)/control_fem
 	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem/multi
 
-experiments: setup ## the paper's six sliding sets for every model (needs $(DATA))
+experiments: setup ## the paper's six sliding sets for every model, best of 5 seeds on each validation setup (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments
 
 experiments-protocols: setup ## train on ramps + excitation, test held-out protocols and coins (needs $(DATA), $(DATA)/excitation; resumes)

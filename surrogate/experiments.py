@@ -6,11 +6,14 @@ written as ``experiments.csv`` (one row per set and model), ``experiments.json``
 ``table.txt`` (a Table II with the paper's numbers beside ours, and the per-set errors),
 ``x_error_boxplot.png`` (|x error| per set and model, the paper's Fig. 6) and
 ``rollouts.png`` (x(t) of the FEM and of each model on each test setup). Each trained
-model is kept under ``set<i>/<kind>/``.
+model is kept under ``set<i>/<kind>/``. With ``restarts`` > 1 each model is the best of that
+many seeds on the set's validation setup (its rollout x error; :func:`surrogate.train.train`):
+the rows record the kept seed and every restart's validation score, never the test setup's.
 """
 from __future__ import annotations
 
 import logging
+import math
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -36,7 +39,8 @@ PAPER = TABLE2
 PAPER_FEM_S = ABAQUS_S
 COLUMNS = ("set", "train", "val", "test", "model", "mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N",
            "x_error_pct_travel", "max_abs_x_error_m", "final_x_error_m", "travel_m", "rollout_ms", "engine",
-           "diverged", "best_epoch", "epochs_run", "train_time_s", "out_of_range_warnings")
+           "diverged", "best_epoch", "epochs_run", "train_time_s", "out_of_range_warnings", "seed", "restarts",
+           "val_x_error_pct_travel", "val_loss", "restart_seeds", "restart_val_x_error_pct", "restart_val_loss")
 
 
 def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=tuple(KINDS),
@@ -86,7 +90,7 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=tupl
         rows.append({**{k: ev.metrics.get(k) for k in COLUMNS}, "set": i, "train": train_name, "val": val_name,
                      "test": test_name, "model": kind, "best_epoch": result.best_epoch,
                      "epochs_run": len(result.history), "train_time_s": result.wall_time_s,
-                     "out_of_range_warnings": len(caught)})
+                     "out_of_range_warnings": len(caught), **restart_columns(result)})
         curves[(i, kind)] = ev
     text = summary_table(rows, kinds) + "\n\n" + per_set_table(rows, kinds)
     write_text(out / "table.txt", text + "\n")
@@ -97,6 +101,19 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=tupl
     plot_boxes(curves, kinds, sets, out / "x_error_boxplot.png")
     plot_rollouts(curves, kinds, sets, out / "rollouts.png")
     return rows
+
+
+def restart_columns(result) -> dict:
+    """The kept seed and every restart's validation scores, as columns of a row (lists as
+    ``;``-separated text, in seed order; a diverged validation rollout scores ``inf``, and
+    None where the kept one did)."""
+    def joined(key):
+        return ";".join(f"{r[key]:.6g}" if isinstance(r[key], float) else str(r[key]) for r in result.restarts)
+    err = result.val_x_error_pct
+    return {"seed": result.seed, "restarts": len(result.restarts),
+            "val_x_error_pct_travel": err if math.isfinite(err) else None,
+            "val_loss": result.best_val_loss, "restart_seeds": joined("seed"),
+            "restart_val_x_error_pct": joined("val_x_error_pct"), "restart_val_loss": joined("best_val_loss")}
 
 
 def _label(kind: str) -> str:

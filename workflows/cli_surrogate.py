@@ -16,6 +16,10 @@ from deapull.io import write_json
 
 # lazy imports below: the surrogate modules load torch, which the CLI starts without
 
+#: default --restarts: the seeds trained per model, the best on the validation setup kept
+#: (docs/surrogate.md: one seed's error can be 50x another's on the same set)
+RESTARTS = 5
+
 
 def _config(args, kind: str):
     import torch  # lazy: torch
@@ -25,7 +29,7 @@ def _config(args, kind: str):
         raise InputError(f"--threads {args.threads} must be at least 1")
     torch.set_num_threads(args.threads)
     return TrainConfig(kind=kind, epochs=args.epochs, seed=args.seed, device=args.device, patience=args.patience,
-                       batch_size=args.batch_size, lr=args.lr)
+                       batch_size=args.batch_size, lr=args.lr, restarts=args.restarts)
 
 
 def cmd_train(args) -> int:
@@ -37,7 +41,9 @@ def cmd_train(args) -> int:
     data = load_sweep(args.data, list(dict.fromkeys([*train_names, args.val])))
     result = train(config, [data[n] for n in train_names], data[args.val])
     out = store.save(result.model, args.out, result.summary(), result.history)
-    print(f"trained {args.model} on {','.join(train_names)} (val {args.val}): best val loss "
+    scores = ", ".join(f"{r['seed']}: {r['val_x_error_pct']:.3g} %" for r in result.restarts)
+    print(f"trained {args.model} on {','.join(train_names)} (val {args.val}): kept seed {result.seed} of "
+          f"{len(result.restarts)} (validation rollout x error by seed: {scores}); best val loss "
           f"{result.best_val_loss:.4g} at epoch {result.best_epoch}/{len(result.history)}, "
           f"{result.wall_time_s:.1f} s -> {out}")
     return 0
@@ -123,6 +129,10 @@ def _training_args(p: argparse.ArgumentParser, epochs: int, patience: int = 100)
     p.add_argument("--batch-size", type=int, default=256, help="transitions per Adam step (256)")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (1e-3)")
     p.add_argument("--seed", type=int, default=0, help="seed of weights and shuffling (0)")
+    p.add_argument("--restarts", type=int, default=RESTARTS,
+                   help=f"seeds trained per model, --seed, --seed+1, ...; the one whose rollout of the validation "
+                        f"setup has the lowest x error is kept, the test setup is never looked at "
+                        f"(default {RESTARTS}; 1: a single run)")
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"), help="training device (cpu)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads (default 1: the networks are small, more threads only add overhead)")

@@ -82,8 +82,21 @@ def test_the_command_prints_the_held_out_table_beside_the_ramp_table(folders, tm
     code = main(["experiments-protocols", "--data", str(data), "--excitation", str(excitation), "--out",
                  str(tmp_path / "out"), "--models", "nn", "--train-coins", "C1", "--val-coins", "C2",
                  "--test-coins", "C3", "--train-protocols", "ramp,rhr", "--test-protocols", "triangle",
-                 "--epochs", "2", "--ramp-results", str(ramp)])
+                 "--epochs", "2", "--ramp-results", str(ramp), "--restarts", "2"])
     printed = capsys.readouterr().out
     assert code == 0
+    # two seeds, scored on the validation coin's runs (C2's ramp and rhr: the mean of their rollout errors)
+    from deapull.surrogate import store
+    from deapull.surrogate.data import load_setup
+    from deapull.surrogate.evaluate import evaluate
+    model, meta = store.load(tmp_path / "out" / "nn")
+    restarts = meta["training"]["restarts"]
+    assert [r["seed"] for r in restarts] == [0, 1] and sum(r["kept"] for r in restarts) == 1
+    kept = next(r for r in restarts if r["kept"])
+    assert meta["training"]["selected_seed"] == kept["seed"]
+    val_runs = [load_setup(data / "C2.nc"), load_setup(excitation / "C2_rhr.nc")]
+    errors = [evaluate(model, run).metrics["x_error_pct_travel"] for run in val_runs]
+    assert kept["val_x_error_pct"] == pytest.approx(sum(errors) / 2, rel=1e-9)
+    assert kept["val_x_error_pct"] == min(r["val_x_error_pct"] for r in restarts)
     assert "the paper's six sets" in printed and "1 (C1/C2/C3)" in printed
     assert "Held-out protocols and coins" in printed and "triangle" in printed

@@ -2,6 +2,10 @@
 in the static stage."""
 from __future__ import annotations
 
+import importlib
+import math
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -89,3 +93,49 @@ def test_cuda_training_and_batched_rollout_match_the_cpu(sweep, kind):
     assert n > 50
     scale = float(cpu[:n, 0].abs().max()) + 1e-6
     assert float((gpu[0, :n, 0] - cpu[:n, 0]).abs().max()) < 1e-3 * scale
+
+
+def _val_error(model, data) -> float:
+    """x error (% of travel) of the model's rollout of ``data``, computed here from x alone."""
+    x = evaluate(model, data).x_model
+    return float(100 * np.abs(x[1:] - data.x[1:]).mean() / np.abs(data.x).max())
+
+
+def test_restarts_keep_the_seed_with_the_lowest_validation_rollout_error(sweep):
+    """Three seeds; each restart's recorded score is its validation rollout error (checked
+    against a single run of that seed, scored here), and the model kept is, bit for bit, the
+    single run of the seed with the lowest score (here the middle one, so neither "the first"
+    nor "the last" passes)."""
+    config = TrainConfig(kind="f-coulomb", epochs=3, seed=11, restarts=3)
+    result = train(config, [sweep["C1"]], sweep["C2"])
+    assert [r["seed"] for r in result.restarts] == [11, 12, 13]
+    singles = {s: train(replace(config, seed=s, restarts=1), [sweep["C1"]], sweep["C2"]) for s in (11, 12, 13)}
+    scores = {s: _val_error(single.model, sweep["C2"]) for s, single in singles.items()}
+    for r in result.restarts:
+        assert r["val_x_error_pct"] == pytest.approx(scores[r["seed"]], rel=1e-9)
+        assert r["best_val_loss"] == singles[r["seed"]].best_val_loss
+    best = min(scores, key=scores.get)
+    assert best == 12, f"the test needs the best seed in the middle (scores {scores})"
+    assert result.seed == best and [r["kept"] for r in result.restarts] == [False, True, False]
+    assert result.val_x_error_pct == pytest.approx(scores[best], rel=1e-9)
+    kept, single = result.model.state_dict(), singles[best].model.state_dict()
+    assert all(torch.equal(kept[k], single[k]) for k in kept)
+    assert result.history == singles[best].history
+    summary = result.summary()
+    assert summary["selected_seed"] == best and len(summary["restarts"]) == 3 and summary["config"]["restarts"] == 3
+
+
+def test_restarts_whose_rollouts_all_diverge_fall_back_to_the_validation_loss(sweep, monkeypatch):
+    train_mod = importlib.import_module("deapull.surrogate.train")   # the package exports the function `train`
+    monkeypatch.setattr(train_mod, "validation_rollout_error", lambda model, val_sets, phis: (math.inf, True))
+    result = train(TrainConfig(kind="f-coulomb", epochs=2, seed=0, restarts=3), [sweep["C1"]], sweep["C2"])
+    losses = [r["best_val_loss"] for r in result.restarts]
+    assert len(set(losses)) == 3 and all(r["val_diverged"] for r in result.restarts)
+    assert result.seed == result.restarts[int(np.argmin(losses))]["seed"]
+    assert result.best_val_loss == min(losses)
+
+
+@pytest.mark.parametrize("restarts", [0, -2, 1.5, True])
+def test_restarts_below_one_are_refused_naming_the_flag(restarts):
+    with pytest.raises(InputError, match=rf"--restarts {restarts!r}: must be a whole number of at least 1"):
+        TrainConfig(kind="nn", restarts=restarts)

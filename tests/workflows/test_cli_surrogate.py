@@ -42,10 +42,16 @@ def test_train_then_evaluate_round_trip(sweep_dir, tmp_path, capsys):
     import torch
     out = tmp_path / "model"
     assert _run("train", "--data", str(sweep_dir), "--train", "C1", "--val", "C2", "--model", "f-coulomb",
-                "--out", str(out), "--epochs", "5", "--seed", "3") == 0
+                "--out", str(out), "--epochs", "5", "--seed", "3", "--restarts", "2") == 0
     assert {p.name for p in out.iterdir()} >= {"model.pt", "model.json", "history.csv"}
     meta = json.loads((out / "model.json").read_text())
     assert meta["kind"] == "f-coulomb" and meta["training"]["config"]["seed"] == 3
+    restarts = meta["training"]["restarts"]   # every restart's validation score and the kept seed
+    assert [r["seed"] for r in restarts] == [3, 4] and meta["training"]["config"]["restarts"] == 2
+    kept = min(restarts, key=lambda r: r["val_x_error_pct"])
+    assert meta["training"]["selected_seed"] == kept["seed"] and [r["kept"] for r in restarts] == [
+        r is kept for r in restarts]
+    assert f"kept seed {kept['seed']} of 2" in capsys.readouterr().out
     assert set(meta["training"]["setups"]) == {"C1", "C2"}
     assert meta["input_range"]["inputs"] == ["x", "u", "V", "dt"]
     state = torch.load(out / "model.pt", weights_only=True)
@@ -89,9 +95,24 @@ def _table(text: str) -> dict:
 def test_experiments_write_table_csv_and_plots(sweep_dir, tmp_path, capsys):
     out = tmp_path / "exp"
     assert _run("experiments", "--data", str(sweep_dir), "--out", str(out), "--epochs", "2", "--sets", "1,2",
-                "--models", "f,f-coulomb,nn") == 0
+                "--models", "f,f-coulomb,nn", "--restarts", "2") == 0
     with open(out / "experiments.csv") as fh:
         rows = list(csv.DictReader(fh))
+    json_rows = json.loads((out / "experiments.json").read_text())["rows"]
+    for r, jr in zip(rows, json_rows):   # the kept seed: the lower validation rollout error, from the model too
+        scores = [float(v) for v in r["restart_val_x_error_pct"].split(";")]   # inf: the rollout diverged
+        losses = [float(v) for v in r["restart_val_loss"].split(";")]
+        assert r["restarts"] == "2" and r["restart_seeds"] == "0;1" and len(scores) == len(losses) == 2
+        kept = min(range(2), key=lambda k: (scores[k], losses[k]))   # the lower score, then the lower loss
+        assert int(r["seed"]) == kept == jr["seed"]
+        if np.isfinite(scores[kept]):
+            assert float(r["val_x_error_pct_travel"]) == pytest.approx(scores[kept], rel=1e-5)
+        else:
+            assert r["val_x_error_pct_travel"] == "" and jr["val_x_error_pct_travel"] is None
+        meta = json.loads((out / f"set{r['set']}" / r["model"] / "model.json").read_text())["training"]
+        assert meta["selected_seed"] == int(r["seed"])
+        assert [x["val_x_error_pct"] if x["val_x_error_pct"] is not None else np.inf
+                for x in meta["restarts"]] == pytest.approx(scores, rel=1e-5)
     assert [(r["set"], r["model"], r["test"]) for r in rows] == [(s, m, t) for s, t in (("1", "C3"), ("2", "C4"))
                                                                  for m in ("f", "f-coulomb", "nn")]
     for r in rows:   # the FEM side of each row, against the test file read here
@@ -124,6 +145,13 @@ def test_bad_input_is_a_clear_value_error(sweep_dir, tmp_path):
         _run("evaluate", "--model", str(tmp_path / "nothing"), "--data", str(sweep_dir), "--test", "C3")
     with pytest.raises(InputError, match="set 7"):
         _run("experiments", "--data", str(sweep_dir), "--out", str(tmp_path / "e"), "--sets", "7")
+    # refused before any data is read (the folder does not exist) or any model trained
+    with pytest.raises(InputError, match=r"--restarts 0: must be a whole number of at least 1"):
+        _run("train", "--data", str(tmp_path / "none"), "--train", "C1", "--val", "C2", "--model", "nn",
+             "--out", str(tmp_path / "m"), "--restarts", "0")
+    with pytest.raises(InputError, match=r"--restarts -3: must be a whole number of at least 1"):
+        _run("experiments", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "e"), "--restarts", "-3")
+    assert not (tmp_path / "m").exists() and not (tmp_path / "e").exists()
     assert issubclass(InputError, ValueError)
 
 
