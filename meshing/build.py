@@ -19,7 +19,7 @@ import numpy as np
 
 from deapull.io import atomic_write, write_json
 from deapull.meshing import groups
-from deapull.meshing.layout import layout
+from deapull.meshing.layout import Layout, layout
 from deapull.scene import Scene
 
 _TOL = 1e-6  # OCC pads bounding boxes by ~1e-7 m
@@ -109,10 +109,9 @@ def z_intervals(scene: Scene) -> list[tuple[float, float, int]]:
     return left[:2] + inner + right[1:]
 
 
-def _add_dea(scene: Scene) -> dict:
+def _add_dea(scene: Scene, lay: Layout) -> dict:
     """Add the two DEA layers, each cut into boxes at the x and z intervals (tip zone, rim band);
     return the volume tags by layer name."""
-    lay = layout(scene)
     occ = gmsh.model.occ
     boxes = {}
     for name, (y0, y1) in (("active", lay.active_y_m), ("passive", lay.passive_y_m)):
@@ -128,9 +127,8 @@ def _add_dea(scene: Scene) -> dict:
     return out
 
 
-def _structure_dea(scene: Scene, vols: dict) -> None:
+def _structure_dea(scene: Scene, lay: Layout, vols: dict) -> None:
     """Transfinite curves, surfaces and volumes on the DEA boxes (and nothing else)."""
-    lay = layout(scene)
     n = _divisions(scene)
     xs, zs = x_intervals(scene), z_intervals(scene)
 
@@ -165,16 +163,14 @@ def _structure_dea(scene: Scene, vols: dict) -> None:
         gmsh.model.mesh.setTransfiniteVolume(v)
 
 
-def _add_coin(scene: Scene) -> int:
-    lay = layout(scene)
+def _add_coin(scene: Scene, lay: Layout) -> int:
     c = scene.coin
     tag = gmsh.model.occ.addCylinder(lay.obstacle_center_x_m, 0.0, 0.0, 0.0, c.height_m, 0.0, c.radius_m)
     gmsh.model.occ.synchronize()
     return tag
 
 
-def _tag_groups(scene: Scene, vols: dict, coin_tag) -> None:
-    lay = layout(scene)
+def _tag_groups(scene: Scene, lay: Layout, vols: dict, coin_tag) -> None:
     L, w = lay.length_m, lay.width_m
     ytop = lay.y_bottom_m + lay.thickness_m
     zmin, _ = _z_range(scene)
@@ -207,15 +203,16 @@ def _tag_groups(scene: Scene, vols: dict, coin_tag) -> None:
 
 
 def build_model(scene: Scene) -> None:
-    """Build and mesh the scene in the current gmsh model."""
-    vols = _add_dea(scene)
-    coin_tag = _add_coin(scene) if scene.coin is not None else None
-    _structure_dea(scene, vols)
+    """Build and mesh the scene in the current gmsh model (its layout computed once here)."""
+    lay = layout(scene)
+    vols = _add_dea(scene, lay)
+    coin_tag = _add_coin(scene, lay) if scene.coin is not None else None
+    _structure_dea(scene, lay, vols)
     if coin_tag is not None:
         size = scene.mesh.coin_size_m / 2 ** scene.mesh.level
         coin_points = gmsh.model.getBoundary([(3, coin_tag)], combined=False, recursive=True)
         gmsh.model.mesh.setSize(coin_points, size)
-    _tag_groups(scene, vols, coin_tag)
+    _tag_groups(scene, lay, vols, coin_tag)
     gmsh.option.setNumber("Mesh.ElementOrder", scene.mesh.order)
     gmsh.option.setNumber("Mesh.SecondOrderIncomplete", 0)
     gmsh.option.setNumber("Mesh.HighOrderOptimize", 0)
