@@ -16,7 +16,7 @@ The points (:func:`error_time_points`):
   the 1 s rollout time and of the x(t) MAE in % of the travel; a model that diverged on any set
   has no finite error (drawn at the top edge, marked "diverged"); and the surrogate rows of the
   fidelity ladder when it has any;
-* **the paper's ABAQUS** — 1 s in 130 s, its error not reported: a vertical line.
+* **the paper's ABAQUS** — 1 s in ``deapull.paper.ABAQUS_S``, its error not reported: a vertical line.
 
 The control loop's error is another quantity (|x − x^T| at the end of an episode, in % of the
 move), so it is a second panel (:func:`control_points`): per policy, plant and noise the median
