@@ -61,9 +61,8 @@ def patch(size_mm: float, degree: int = 16) -> tuple:
 
 
 #: the reference ladder: the resolved patch at 2 / 1 / 0.5 mm, 9 x 9 Gauss points per contact
-#: facet (points ~0.22 / 0.11 / 0.06 mm apart). The 0.25 mm level (16,260 dofs) is the study
-#: ``patch-fine``: serial UMFPACK spent > 5 min in its placement alone here, so it is left to a
-#: bigger machine (``--reference-ranks``).
+#: facet (points ~0.22 / 0.11 / 0.06 mm apart). The 0.25 mm level is the study ``patch-fine``,
+#: left to a machine with the cores for it (``--reference-ranks``; docs/fem_accuracy.md).
 PATCH_SIZES_MM = (2.0, 1.0, 0.5)
 REFERENCE = {f"patch-{h:g}mm-9x9": patch(h) for h in PATCH_SIZES_MM}
 REFERENCE_RATIOS = (PATCH_SIZES_MM[0] / PATCH_SIZES_MM[1], PATCH_SIZES_MM[1] / PATCH_SIZES_MM[2])
@@ -71,8 +70,8 @@ REFERENCE_ORDER = tuple(REFERENCE)
 PATCH_FINE = {"patch-0.25mm-9x9": patch(0.25)}
 #: the contact rule on the patch levels: 5 x 5 against the ladder's 9 x 9
 PATCH_RULE = {f"patch-{h:g}mm-5x5": patch(h, 8) for h in PATCH_SIZES_MM}
-#: the coin's penalty x 10 on the resolved 1 mm patch (the shipped 2.24e9 N/m^3 lets the resolved
-#: patch sink ~0.1 mm into the coin, where one point on the shipped mesh sinks ~13 µm)
+#: the coin's penalty x 10 on the resolved 1 mm patch (at the shipped penalty the resolved patch
+#: sinks far deeper into the coin than the shipped mesh's one point: docs/fem_accuracy.md)
 PATCH_PENALTY = {"patch-1mm-9x9-k10": (*patch(1.0), "contact.penalty_N_m3=2.24e10")}
 
 #: the uniform ladder that was the reference before issue 23 (no tip zone; it oscillates because
