@@ -44,7 +44,7 @@ COLUMNS = ("set", "train", "val", "test", "model", "mae_x_m", "mae_u_m_s", "mae_
 
 
 def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=tuple(KINDS),
-        sets=tuple(SETS)) -> list[dict]:
+        sets=tuple(SETS), restarts: dict | None = None) -> list[dict]:
     """Train and evaluate every model kind on every set; write the tables and plots.
 
     Parameters
@@ -59,6 +59,8 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=tupl
         Model kinds to run.
     sets : sequence of int
         Which of the six sets to run.
+    restarts : dict, optional
+        Restarts per kind (``base.restarts`` for a kind not in it).
 
     Returns
     -------
@@ -80,7 +82,8 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=tupl
     jobs = [(i, kind) for i in sets for kind in kinds]
     for i, kind in tqdm(jobs, desc="experiments", unit="model", disable=None):
         train_name, val_name, test_name = SETS[i]
-        result = train(replace(base, kind=kind), [data[train_name]], data[val_name])
+        result = train(replace(base, kind=kind, restarts=(restarts or {}).get(kind, base.restarts)),
+                       [data[train_name]], data[val_name])
         store.save(result.model, out / f"set{i}" / kind, result.summary(), result.history)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", OutOfRangeWarning)

@@ -183,7 +183,7 @@ def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_di
 
 
 def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, excitation_dir: str | Path | None = None,
-        kinds=DEFAULT_KINDS, design: Design = Design()) -> list[dict]:
+        kinds=DEFAULT_KINDS, design: Design = Design(), restarts: dict | None = None) -> list[dict]:
     """Train (or reuse) every kind, evaluate it on every held-out run, write the tables.
 
     Returns
@@ -205,7 +205,8 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, excitation
     todo = cases(design, data_dir, excitation_dir)
     rows = []
     for kind in kinds:
-        model, _ = train_or_load(kind, base, design, data_dir, excitation_dir, out)
+        cfg = replace(base, restarts=(restarts or {}).get(kind, base.restarts))   # restarts: per kind, or base's
+        model, _ = train_or_load(kind, cfg, design, data_dir, excitation_dir, out)
         for coin, protocol, role in todo:
             rows.append(evaluate_case(model, kind, coin, protocol, role, data_dir, excitation_dir, out))
     summary = summarise(rows, kinds)

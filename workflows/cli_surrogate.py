@@ -17,19 +17,54 @@ from deapull.io import write_json
 # lazy imports below: the surrogate modules load torch, which the CLI starts without
 
 #: default --restarts: the seeds trained per model, the best on the validation setup kept
-#: (docs/surrogate.md: one seed's error can be 50x another's on the same set)
-RESTARTS = 5
+#: (docs/surrogate.md: one seed's error can be 50x another's on the same set). The physics-
+#: informed f models train in seconds and get 5; the slower memory model and the black boxes 1.
+RESTARTS = "f=5,f-coulomb=5"
+
+
+def parse_restarts(text: str) -> tuple[int, dict]:
+    """``--restarts``: ``N`` (every model) or ``kind=N,...`` (those kinds; every other model 1).
+    Returns (the count for a kind not named, {kind: count}); refuses anything else naming the
+    flag before any data are read."""
+    def count(value: str, where: str) -> int:
+        try:
+            n = int(value)
+        except ValueError:
+            n = None
+        if n is None or n < 1 or str(n) != value.strip():
+            raise InputError(f"--restarts {where}: must be a whole number of at least 1 (how many seeds to train "
+                             f"from --seed; the one whose rollout of the validation setup has the lowest x error "
+                             f"is kept), or kind=N,... for some models (the rest train once)")
+        return n
+    text = str(text).strip()
+    if "=" not in text:
+        return count(text, text), {}
+    by_kind = {}
+    for item in (part.strip() for part in text.split(",") if part.strip()):
+        kind, _, value = item.partition("=")
+        by_kind[kind.strip()] = count(value, item)
+    return 1, by_kind
+
+
+def restarts_for(args, kind: str) -> int:
+    default, by_kind = parse_restarts(args.restarts)
+    return by_kind.get(kind, default)
 
 
 def _config(args, kind: str):
     import torch  # lazy: torch
 
+    from deapull.surrogate.models import KINDS  # lazy: torch
     from deapull.surrogate.train import TrainConfig  # lazy: torch
+    unknown = [k for k in parse_restarts(args.restarts)[1] if k not in KINDS]
+    if unknown:
+        raise InputError(f"--restarts {args.restarts}: {', '.join(unknown)} is not a model; choose from "
+                         f"{', '.join(KINDS)}")
     if args.threads < 1:
         raise InputError(f"--threads {args.threads} must be at least 1")
     torch.set_num_threads(args.threads)
     return TrainConfig(kind=kind, epochs=args.epochs, seed=args.seed, device=args.device, patience=args.patience,
-                       batch_size=args.batch_size, lr=args.lr, restarts=args.restarts)
+                       batch_size=args.batch_size, lr=args.lr, restarts=restarts_for(args, kind))
 
 
 def cmd_train(args) -> int:
@@ -75,7 +110,8 @@ def cmd_experiments(args) -> int:
         sets = [int(s) for s in args.sets.split(",") if s.strip()]
     except ValueError:
         raise InputError(f"--sets {args.sets!r}: expected comma-separated set numbers 1..6") from None
-    rows = experiments.run(args.data, args.out, _config(args, "f"), kinds=kinds, sets=sets)
+    restarts = {k: restarts_for(args, k) for k in kinds}
+    rows = experiments.run(args.data, args.out, _config(args, "f"), kinds=kinds, sets=sets, restarts=restarts)
     print(experiments.summary_table(rows, kinds))
     print()
     print(experiments.per_set_table(rows, kinds))
@@ -91,7 +127,9 @@ def cmd_experiments_protocols(args) -> int:
                        test_coins=tuple(parse_setups(args.test_coins)) if args.test_coins else (),
                        train_protocols=tuple(parse_setups(args.train_protocols)),
                        test_protocols=tuple(parse_setups(args.test_protocols)))
-    rows = pe.run(args.data, args.out, _config(args, "f"), excitation_dir=args.excitation, kinds=kinds, design=design)
+    restarts = {k: restarts_for(args, k) for k in kinds}
+    rows = pe.run(args.data, args.out, _config(args, "f"), excitation_dir=args.excitation, kinds=kinds, design=design,
+                  restarts=restarts)
     ramp_csv = Path(args.ramp_results) / "experiments.csv" if args.ramp_results else None
     if ramp_csv is not None and ramp_csv.is_file():
         with ramp_csv.open() as fh:
@@ -129,10 +167,10 @@ def _training_args(p: argparse.ArgumentParser, epochs: int, patience: int = 100)
     p.add_argument("--batch-size", type=int, default=256, help="transitions per Adam step (256)")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (1e-3)")
     p.add_argument("--seed", type=int, default=0, help="seed of weights and shuffling (0)")
-    p.add_argument("--restarts", type=int, default=RESTARTS,
+    p.add_argument("--restarts", default=RESTARTS,
                    help=f"seeds trained per model, --seed, --seed+1, ...; the one whose rollout of the validation "
-                        f"setup has the lowest x error is kept, the test setup is never looked at "
-                        f"(default {RESTARTS}; 1: a single run)")
+                        f"setup has the lowest x error is kept, the test setup is never looked at: N for every "
+                        f"model, or kind=N,... for those kinds (the rest once) (default {RESTARTS}; 1: a single run)")
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"), help="training device (cpu)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads (default 1: the networks are small, more threads only add overhead)")

@@ -92,6 +92,24 @@ def _table(text: str) -> dict:
     return rows
 
 
+def test_restarts_per_model_kind(sweep_dir, tmp_path):
+    from deapull.workflows.cli_surrogate import RESTARTS, parse_restarts
+    assert parse_restarts("3") == (3, {})
+    assert parse_restarts("f-coulomb=2, nn=4") == (1, {"f-coulomb": 2, "nn": 4})
+    assert parse_restarts(RESTARTS)[0] == 1     # the default: named kinds only, the rest once
+    for bad in ("0", "f=0", "f=1.5", "f=", "x"):
+        with pytest.raises(InputError, match=r"--restarts .*must be a whole number of at least 1"):
+            parse_restarts(bad)
+    with pytest.raises(InputError, match=r"--restarts lstmm=2: lstmm is not a model"):
+        _run("experiments", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "e"), "--restarts", "lstmm=2")
+    out = tmp_path / "exp"
+    assert _run("experiments", "--data", str(sweep_dir), "--out", str(out), "--epochs", "2", "--sets", "1",
+                "--models", "f-coulomb,nn", "--restarts", "f-coulomb=2") == 0
+    with open(out / "experiments.csv") as fh:
+        restarts = {r["model"]: r["restarts"] for r in csv.DictReader(fh)}
+    assert restarts == {"f-coulomb": "2", "nn": "1"}
+
+
 def test_experiments_write_table_csv_and_plots(sweep_dir, tmp_path, capsys):
     out = tmp_path / "exp"
     assert _run("experiments", "--data", str(sweep_dir), "--out", str(out), "--epochs", "2", "--sets", "1,2",
