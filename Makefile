@@ -81,7 +81,7 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --out $(MODELS)/fa
 	$(DEAPULL) control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 --noise $(NOISE) \
-		--data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa --sac-dir '$(MODELS)/sac{n}' \
+		--phi-prior coins --data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa --sac-dir '$(MODELS)/sac{n}' \
 		--out $(OUT)/control
 
 FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --mpc-approach-mm 1.0 --mpc-standoff 2 \
