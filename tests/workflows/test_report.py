@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import xarray as xr
 
 from deapull.errors import InputError
 from deapull.io import write_csv
@@ -301,6 +302,26 @@ def _write_fields(folder: Path, times, nx=4) -> Path:
         f'<Grid Name="displacement" GridType="Collection" CollectionType="Temporal">{grids}</Grid></Domain></Xdmf>')
     shutil.copy(SWEEP / "C3.nc", folder / "C3.nc")      # the run: x(t), stick, the scene (coin)
     return xdmf
+
+
+@pytest.mark.parametrize("sink_um, verdict", [(0.5, "yes"), (750.0, "no")])
+def test_a_dea_resting_on_the_table_is_judged_by_the_penalty_tolerance(tmp_path, sink_um, verdict):
+    # the synthetic tip sinks to its lowest y at t = 1; a table put sink_um above that point
+    fields = tmp_path / "out" / "report_fields"
+    fields.mkdir(parents=True)
+    xdmf = _write_fields(fields, np.linspace(0, 1, 5))
+    s3 = pictures.load_scene3d(xdmf)
+    lowest = min(float((s3.points + s3.displacement(i))[:, 1].min()) for i in range(len(s3.fields.times)))
+    height = lowest + sink_um * 1e-6
+    run = xr.load_dataset(fields / "C3.nc")
+    run.attrs["scene_toml"] += f"\n[table]\nheight_m = {height!r}\nmu_g = 0.5\npenalty_N_m3 = 1e11\n"
+    run["table_penetration_m"] = ("step", np.zeros(run.sizes["step"]), {"units": "m"})
+    run.to_netcdf(fields / "C3.nc", engine="h5netcdf")
+    out = tmp_path / "report"
+    report.build(out, _inputs(tmp_path, _sweep(tmp_path, ["C3"])), frames=3, progress=False)
+    text = (out / "report.md").read_text()
+    assert "rests on the table" in text and "below the ground" not in text
+    assert f"{verdict}: it sinks ≤ {sink_um:.2f} µm into the table" in text
 
 
 def test_boundary_faces_of_a_hex27_box():
