@@ -66,6 +66,7 @@ def draw_error_time(points: list[dict], control: list[dict]):
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6.4), gridspec_kw={"width_ratios": [1.35, 1]})
     edge = blended_transform_factory(ax.transData, ax.transAxes)
     walls = [p["wall_s"] for p in points if _finite_pos(p["wall_s"])]
+    failed_rungs = labelled_top = 0
     for p in points:
         colour = GROUP_COLOURS.get(p["group"], "k")
         wall, err = p["wall_s"], p["error_pct"]
@@ -78,8 +79,12 @@ def draw_error_time(points: list[dict], control: list[dict]):
             continue
         if p["status"].startswith("diverged") or (err is None and not p["status"].startswith("ref")):
             ax.plot([wall], [0.97], marker="^", color=colour, ms=9, transform=edge, clip_on=False)
-            ax.text(wall, 0.93, f"{p['label']}: {p['status']}", transform=edge, fontsize=7, ha="center",
-                    va="top", color=colour)
+            if p["group"] == "FEM ladder":    # many rungs: one note below, their rows in the CSV and table
+                failed_rungs += 1
+            else:
+                ax.text(wall, 0.93 - 0.04 * (labelled_top % 3), f"{p['label']}: {p['status']}", transform=edge,
+                        fontsize=7, ha="center", va="top", color=colour)
+                labelled_top += 1
             continue
         if not _finite_pos(err):                   # a reference: error 0 by definition
             ax.plot([wall], [0.03], marker="*", color=colour, ms=11, transform=edge, clip_on=False)
@@ -90,6 +95,10 @@ def draw_error_time(points: list[dict], control: list[dict]):
         if p["group"] != "FEM ladder":
             ax.annotate(p["label"], (wall, err), textcoords="offset points", fontsize=7, color=colour,
                         xytext=(5, -10) if p["metric"] == BOUND else (5, 3))
+    if failed_rungs:
+        ax.text(0.99, 0.86, f"▲ on the top edge: {failed_rungs} FEM ladder rung(s) without an error (failed or "
+                "not converged; see the table)", transform=ax.transAxes, fontsize=7, ha="right",
+                color=GROUP_COLOURS.get("FEM ladder", "k"))
     ax.set_xscale("log")
     ax.set_yscale("log")
     errs = [p["error_pct"] for p in points if _finite_pos(p["error_pct"])]
