@@ -104,6 +104,9 @@ class DEAProblem:
         self._facet_tags = facet_tags
         self._contact_points = None     # (points, cells) of the contact quadrature, on first use
         self._table_points = None       # the same for the table's quadrature
+        # the table's rule: Gauss–Lobatto on quadrilateral facets (points on the edges and corners, where
+        # the DEA drapes onto the table); basix has no Lobatto rule on triangles, so tetrahedra get Gauss
+        self.table_rule = "gauss_lobatto" if mesh.topology.cell_type == dolfinx.mesh.CellType.hexahedron else "gauss"
         self._build_forms(cell_tags, facet_tags)
         self._build_snes()
 
@@ -146,7 +149,7 @@ class DEAProblem:
         if sc.table is not None:
             tb = sc.table
             self.ds_table = compat.facet_measure(self.mesh, facet_tags, groups.DEA_CONTACT, tb.quadrature_degree,
-                                                 "gauss_lobatto")
+                                                 self.table_rule)
             self.mu_g = dolfinx.fem.Constant(self.mesh, float(tb.mu_g))
             self.table = table.table_terms(u, self.u_old, v, self.dt, self.ds_table, height_m=tb.height_m,
                                            mu=self.mu_g, penalty_N_m3=tb.penalty_N_m3,
@@ -415,7 +418,7 @@ class DEAProblem:
                 sc = self.scene.contact
                 degree, rule = sc.quadrature_degree, sc.quadrature_rule
             else:
-                degree, rule = self.scene.table.quadrature_degree, "gauss_lobatto"
+                degree, rule = self.scene.table.quadrature_degree, self.table_rule
             points, cells = compat.facet_quadrature_points(self.mesh, facets, degree, rule)
             setattr(self, attr, compat.PointEvaluator(self.w, points, cells, 0 if self.has_parts else None))
         ev = getattr(self, attr)

@@ -42,9 +42,10 @@ def _move(problem, depth_m, slip_m=(0.0, 0.0), dt=1.0):
     problem.set_load(0.0, 0.0, dt)
 
 
+@pytest.mark.parametrize("cell", ["hexahedron", "tetrahedron"])   # tetrahedra: Gauss (no Lobatto on triangles)
 @pytest.mark.parametrize("sym", ["none", "half_z"])
-def test_flat_punch_pressure_is_penalty_times_depth_times_area(tmp_path, sym):
-    sc, p = _problem(tmp_path, *TABLE, f"mesh.symmetry='{sym}'")
+def test_flat_punch_pressure_is_penalty_times_depth_times_area(tmp_path, sym, cell):
+    sc, p = _problem(tmp_path, *TABLE, f"mesh.symmetry='{sym}'", f"mesh.cell='{cell}'")
     depth = 3e-6
     _move(p, depth)
     Rx, Ry = p.table_reaction()
