@@ -13,6 +13,7 @@ import dolfinx
 import dolfinx.fem.petsc
 import gmsh
 import numpy as np
+import scipy.sparse
 import ufl
 from dolfinx.io import gmshio
 from mpi4py import MPI
@@ -366,8 +367,6 @@ class PointEvaluator:
     """
 
     def __init__(self, function, points, cells, subspace=None):
-        import scipy.sparse   # cost: scipy.sparse is only needed by runs that count contact points
-
         self.subspace = subspace
         self.points, self.cells = np.asarray(points, dtype=float), np.asarray(cells, dtype=np.int32)
         self.B = None
