@@ -117,6 +117,11 @@ class MPCConfig:
         Within this distance (m) of the target |ΔV| is limited to ΔV_max × distance /
         ``approach_m`` (not below ``creep_V``), so the coin arrives slowly and does not coast
         past (0: no limit).
+    max_rate_V : float
+        Ramp-rate-aware planning: plan and apply at most this |ΔV| per step (V; 0: the
+        plant's ΔV_max). A heavy coin is carried further by a slow push: at the plant's
+        5 V per step the tip slips over it, at the sweep's 0.4 V per step it is dragged
+        along (docs/control.md).
     crlb_every : int
         Report the inferred fields' Cramér–Rao bounds every this many transitions (0: never;
         :meth:`MPCPolicy.inferred`).
@@ -148,6 +153,7 @@ class MPCConfig:
     hold_stds: float = 1.0
     creep_V: float = 0.5
     approach_m: float = 0.0
+    max_rate_V: float = 0.0
     crlb_every: int = 100
     identified_crlb: float = 0.1
     standoff_stds: float = 0.0
@@ -161,7 +167,7 @@ class MPCConfig:
             raise InputError(f"MPC engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
         if not 0 <= self.hold_band <= 1:
             raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
-        for name in ("hold_stds", "creep_V", "approach_m", "standoff_stds", "max_wait", "crlb_every",
+        for name in ("hold_stds", "creep_V", "approach_m", "max_rate_V", "standoff_stds", "max_wait", "crlb_every",
                      "bias_process_fraction"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -211,6 +217,8 @@ class MPCPolicy(Policy):
         cfg = self.config
         self.spec, self.target_m, self.tolerance_m = spec, float(spec.target_m), float(spec.tolerance_m)
         self.dt, self.dv_max_V, self.v_max_V = float(spec.dt_s), float(spec.dv_max_V), float(spec.v_max_V)
+        if cfg.max_rate_V > 0:              # the plan's ΔV_max: the model sees the rate the plant gets
+            self.dv_max_V = min(self.dv_max_V, cfg.max_rate_V)
         noise = float(spec.noise_std_m)
         self.noisy = noise > 0
         self.kalman = self.bias = None
@@ -398,13 +406,14 @@ class MPCPolicy(Policy):
             self.plan = sol.u[int(sol.cost.argmin())].unsqueeze(0)
         self.solve_ms.append(1e3 * (time.perf_counter() - start))
         dV = float(self.plan[0, 0, 0]) * self.dv_max_V
+        creep = min(cfg.creep_V, self.dv_max_V)
         if cfg.approach_m > 0:
             # slow down near the target: the coin's coast after V stops rising grows with its
             # speed, which f_a (quasi-static tip) does not model
-            limit = max(cfg.creep_V, self.dv_max_V * abs(x - self.target_m) / cfg.approach_m)
+            limit = max(creep, self.dv_max_V * abs(x - self.target_m) / cfg.approach_m)
             dV = max(-limit, min(limit, dV))
-        if cfg.hold_band > 0 and 0 < abs(dV) < cfg.creep_V:
+        if cfg.hold_band > 0 and 0 < abs(dV) < creep:
             # outside the hold region a step too small to drag the coin (its slip rate under
             # the friction's regularisation, docs/control.md) would only stall: creep instead
-            dV = math.copysign(cfg.creep_V, dV)
+            dV = math.copysign(creep, dV)
         return dV

@@ -24,6 +24,7 @@ def cmd_control(args) -> int:
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
+        mpc_max_rate_V=args.mpc_max_rate,
         infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress,
@@ -86,6 +87,10 @@ def register(sub) -> None:
     p.add_argument("--mpc-approach-mm", type=float, default=0.0,
                    help="the offset-free MPC slows down within this distance of the target (mm): |dV| <= dV_max * "
                         "distance / approach, so the coin does not coast past (default 0: no limit)")
+    p.add_argument("--mpc-max-rate", type=float, default=0.0,
+                   help="ramp-rate-aware MPC: at most this |dV| per step (V), in its plan and on the plant; a "
+                        "slow push carries a heavy coin further (e.g. 0.4, the sweep's 0-400 V in 1 s; default 0: "
+                        "--dv-max)")
     p.add_argument("--mpc-standoff", type=float, default=0.0,
                    help="under noise the MPC stops this many stds of its position estimate short of the target and "
                         "holds V until the observations have averaged the estimate down, then goes on (default 0: "

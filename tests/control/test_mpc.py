@@ -367,7 +367,8 @@ def test_with_a_prior_the_plan_uses_only_what_the_data_identify(coulomb, sweep):
 
 
 @pytest.mark.parametrize("field, value", [("creep_V", -0.5), ("approach_m", float("nan")), ("standoff_stds", -1.0),
-                                          ("identified_crlb", 0.0), ("hold_band", 1.5), ("max_wait", -1)])
+                                          ("identified_crlb", 0.0), ("hold_band", 1.5), ("max_wait", -1),
+                                          ("max_rate_V", -0.4)])
 def test_bad_mpc_settings_are_refused_naming_the_field(field, value):
     from deapull.control.mpc_policy import MPCConfig
     with pytest.raises(InputError, match=field.replace("_", "[ _]")):
@@ -420,3 +421,26 @@ def test_under_noise_the_stand_off_holds_short_of_the_target_until_the_estimate_
     row = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50).row
     assert policy.waited > 50
     assert row["overshoot_m"] < 1e-5
+
+
+def test_the_rate_limit_caps_every_step_and_the_plan_still_reaches_and_holds(coulomb, sweep):
+    """``max_rate_V`` (ramp-rate-aware planning, ``--mpc-max-rate``): the MPC plans with that
+    ΔV_max and applies no step larger, creep included; it still reaches the target and holds
+    it. Without it the MPC pushes at the plant's 5 V per step. Broken once: the rate left out
+    of the plan's ΔV_max (the cap check failed: 5 V steps)."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    largest = {}
+    for rate in (0.0, 0.4):
+        env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000)
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=rate),
+                           phi=plant.truth)
+        episode = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50)
+        V = np.asarray(episode.V_V)
+        largest[rate] = float(np.abs(np.diff(V)).max())
+        assert episode.row["reached"] and episode.row["settled"], (rate, episode.row)
+    assert largest[0.0] == pytest.approx(5.0)
+    assert largest[0.4] <= 0.4 + 1e-9
