@@ -10,9 +10,11 @@ Installed as ``deapull.control`` so that it never shadows python-control's ``con
   baselines;
 * :mod:`~deapull.control.mpc`, :mod:`~deapull.control.dynamics`, :mod:`~deapull.control.mpc_policy`, :mod:`~deapull.control.inference`
   — the box-constrained iLQR, f_a in scaled units with its cost, the MPC policy on f_a and the
-  online inference of φ.
+  online inference of φ;
+* :mod:`~deapull.control.harness` — the closed-loop bench: the task every episode asks, the
+  plants and policies built from resolved models and settings, and one episode's run.
 
-The experiment harness and the ``deapull control`` command are in
+The ``deapull control`` command (its configuration, checks and outputs) is in
 :mod:`deapull.workflows.control` (see README, "Control").
 """
 from deapull.control import mpc

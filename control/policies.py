@@ -37,7 +37,7 @@ class Policy(ABC):
     name : str
         Short name for tables and plots (``pd``, ``heur``, ``sac``, ``mpc``).
 
-    The harness (:func:`deapull.workflows.control.run_episode`) calls ``reset(spec)`` after
+    The harness (:func:`deapull.control.harness.run_episode`) calls ``reset(spec)`` after
     every ``env.reset``, then ``act`` once per step; the wall time of ``act`` is the
     policy's time per iteration. A policy sees the task's constants and the observations
     only, never the env or the plant (tests/control/test_policies.py checks it).

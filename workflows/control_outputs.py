@@ -19,8 +19,8 @@ def _padded(series: list[np.ndarray]) -> np.ndarray:
     return np.stack([np.concatenate([s, np.full(n - len(s), s[-1])]) for s in series])
 
 
-def plot_all(config, episodes) -> None:
-    """Every figure of a run (``control.ControlConfig``, its ``Episode`` list) into ``config.out``."""
+def plot_all(out: Path, episodes, target_m: float, tolerance_m: float) -> None:
+    """Every figure of a run (its ``control.Episode`` list, the target and its tolerance) into ``out``."""
     import matplotlib  # lazy: matplotlib (~0.5 s) loads only when the figures are drawn
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -41,15 +41,15 @@ def plot_all(config, episodes) -> None:
                 lo, hi = np.percentile(values, [25, 75], axis=0)
                 ax.fill_between(t, lo, hi, alpha=0.25)
             if what == "position":
-                target = 1e3 * config.target_m
+                target = 1e3 * target_m
                 ax.axhline(target, color="k", lw=0.8, ls="--", label=f"x^T = {target:g} mm")
-                ax.axhspan(target - 1e3 * config.tolerance_m, target + 1e3 * config.tolerance_m, color="0.85")
+                ax.axhspan(target - 1e3 * tolerance_m, target + 1e3 * tolerance_m, color="0.85")
             ax.set_xlabel("t [s]" if dt else "iteration (Δt = 1 ms)")
             ax.set_ylabel(ylabel)
             ax.set_title(f"{plant}, observation noise {noise:g} m (line: mean, band: 25–75 %; "
                          "finished episodes held)", fontsize=9)
             ax.legend(fontsize=8)
-            _save(fig, config.out / f"{what}_{stem}.png")
+            _save(fig, out / f"{what}_{stem}.png")
         inferring = {p: eps for p, eps in by_policy.items() if eps[0].inferred}
         if inferring:
             fields = sorted({f for eps in inferring.values() for f in eps[0].inferred})
@@ -71,7 +71,7 @@ def plot_all(config, episodes) -> None:
                 ax.set_ylabel(f)
                 ax.legend(fontsize=8)
             axes[-1, 0].set_xlabel("iteration")
-            _save(fig, config.out / f"inferred_{stem}.png")
+            _save(fig, out / f"inferred_{stem}.png")
 
 
 def _save(fig, path: Path) -> None:

@@ -79,12 +79,11 @@ def check(config: DaggerConfig) -> None:
             raise InputError(f"--data {str(config.data)!r}: {name}.nc not found (the ramps f_a starts from)")
 
 
-def train_model(config: DaggerConfig, runs: list[Path], out: Path):
-    """f_a on the ramps and the aggregated runs (validated on the ramp ``val``); saved in ``out``."""
-    ramps = load_sweep(config.data, list(dict.fromkeys([*config.train, config.val])))
-    train_sets = [ramps[n] for n in config.train] + [load_setup(p) for p in runs]
-    result = train(TrainConfig(kind=config.kind, epochs=config.epochs, seed=config.seed), train_sets,
-                   ramps[config.val])
+def train_model(ramps: dict, train_names: list, val: str, settings: TrainConfig, runs: list[Path], out: Path):
+    """f_a on the ramps ``train_names`` and the aggregated ``runs`` (validated on the ramp ``val``);
+    saved in ``out``. ``ramps``: the ramps by name, read once per run."""
+    train_sets = [ramps[n] for n in train_names] + [load_setup(p) for p in runs]
+    result = train(settings, train_sets, ramps[val])
     store.save(result.model, out, result.summary(), result.history)
     return result.model, sum(d.n_steps - 1 for d in train_sets), len(train_sets)
 
@@ -130,13 +129,16 @@ def run(config: DaggerConfig) -> list[dict]:
     runs_dir = out / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     aggregated: list[Path] = list(config.extra)
+    training = TrainConfig(kind=config.kind, epochs=config.epochs, seed=config.seed)
+    trains = config.model is None or config.rounds > 1
+    ramps = load_sweep(config.data, list(dict.fromkeys([*config.train, config.val]))) if trains else {}
     if config.model is not None:
         model, _ = store.load(config.model)
         model_dir = Path(config.model)
         n_transitions, n_runs = math.nan, len(config.train)
     else:
         model_dir = out / "models" / "r0"
-        model, n_transitions, n_runs = train_model(config, aggregated, model_dir)
+        model, n_transitions, n_runs = train_model(ramps, config.train, config.val, training, aggregated, model_dir)
     rows, best = [], None
     for k in range(config.rounds):
         log.info("dagger round %d: MPC on %s with f_a trained on %d runs", k,
@@ -157,7 +159,8 @@ def run(config: DaggerConfig) -> list[dict]:
         aggregated += new
         if k + 1 < config.rounds:
             model_dir = out / "models" / f"r{k + 1}"
-            model, n_transitions, n_runs = train_model(config, aggregated, model_dir)
+            model, n_transitions, n_runs = train_model(ramps, config.train, config.val, training, aggregated,
+                                                       model_dir)
     write_csv(out / "dagger.csv", rows, list(COLUMNS))
     write_text(out / "dagger.md", summary_table(rows) + "\n")
     return rows
