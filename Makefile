@@ -86,7 +86,7 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 		--phi-prior coins --data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa --sac-dir '$(MODELS)/sac{n}' \
 		--out $(OUT)/control
 
-FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --mpc-approach-mm 1.0 --mpc-standoff 2 \
+FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --mpc-max-rate 0.4 \
 	--max-steps 3000 --mpc-model $(MODELS)/fa
 control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (~40 min)
 	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
