@@ -124,3 +124,14 @@ def test_the_bands_are_numpys_percentiles_of_the_episodes(tmp_path):
     mpc = [r for r in rows if r["policy"] == "mpc"]
     assert [r["iteration"] for r in mpc] == [0, 3, 6, 8]           # every 3rd and the last
     assert mpc[-1]["x_p50_mm"] == panels[("surrogate:C2", 0.001)]["mpc"]["p50"][8]
+
+
+def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
+    """The FEM closed-loop section describes each run's MPC settings from its ``run.json``, not
+    from typed text: the rate limit, the approach and the stand-off appear only when that run
+    used them. Broken once: the rate read from the wrong key (the first check failed)."""
+    rate = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_approach_m": 0.0, "mpc_standoff": 0.0})
+    assert "0.4 V per step" in rate and "mm of the target" not in rate and "stds" not in rate
+    slow = sections_control.mpc_settings_text({"dv_max_V": 5.0, "mpc_max_rate_V": 0.0, "mpc_approach_m": 1e-3,
+                                                "mpc_standoff": 2.0})
+    assert "5 V per step" in slow and "within 1 mm" in slow and "2 stds" in slow

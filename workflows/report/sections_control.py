@@ -132,14 +132,19 @@ def section_control_fem(rep: Report) -> Section:
     rep.source(csv_path, sec)
     sec.p("The offset-free MPC (`docs/control.md`) on the FEM stepped online (`advance(V, 1 ms)`, the shipped "
           "scene of each setup), observation noise 0.1 mm: it plans on f_a, estimates f_a's gain error with the "
-          "position, slows down near the target, stops short while its estimate is uncertain and holds V once "
-          "the estimate is inside the window. The paper runs control on its surrogates only. Settled = the true "
-          "position stays within ±0.01 mm for the whole hold after the first success.")
+          "position and holds V once the estimate is inside the window. The paper runs control on its surrogates "
+          "only. Settled = the true position stays within ±0.01 mm for the whole hold after the first success.")
     rows = read_csv(csv_path)
+    runs = [("Single target", folder / "run.json")]
     multi = folder / "multi" / "control.csv"
     if multi.is_file():
         rep.source(multi, sec)
         rows += read_csv(multi)
+        runs.append(("Multi-setpoint task", folder / "multi" / "run.json"))
+    for label, run_json in runs:
+        if run_json.is_file():
+            rep.source(run_json, sec)
+            sec.p(f"{label}: {mpc_settings_text(json.loads(run_json.read_text()).get('config') or {})}.")
     t_rows, anchors = [], []
     for i, r in enumerate(rows):
         t_rows.append([r["plant"], r.get("setpoints_mm", ""), r.get("iterations_per_setpoint") or
@@ -151,13 +156,28 @@ def section_control_fem(rep: Report) -> Section:
         anchors.append(f"control-fem-{i}")
     sec.table(Table(["plant", "setpoints (mm)", "iterations per setpoint", "setpoints settled", "settled",
                      "overshoot (mm)", "final abs error (mm)", "FEM ms / step", "episode wall (s)"], t_rows, anchors,
-                    caption="One episode per plant (the multi-setpoint task: push −0.5, push −1.0, pull back −0.7 mm)"))
+                    caption="One episode per plant; setpoints −0.5;−1;−0.7: the multi-setpoint task (push, push, "
+                            "pull back)"))
     settled = sum(r.get("settled") in ("True", "1") for r in rows)
     rep.claims.append(Claim("The MPC on the FEM plant (noise 0.1 mm)", "not run (control on the surrogates only)",
                             f"settled in {settled}/{len(rows)} episodes", "#control-fem-0", outcome="beyond the paper"))
     for png in sorted(folder.glob("position_*.png")) + sorted((folder / "multi").glob("position_*.png")):
         sec.img(rep.copy_image(png, f"control_fem_{png.parent.name}_{png.name}"), f"`{png.stem}`: coin position.")
     return sec
+
+
+def mpc_settings_text(config: dict) -> str:
+    """How a run's MPC moved V, from its ``run.json`` config (the options of ``deapull control``)."""
+    parts = []
+    rate = config.get("mpc_max_rate_V") or 0.0
+    parts.append(f"at most {rate:g} V per step (`--mpc-max-rate`)" if rate > 0 else
+                 f"up to the plant's {config.get('dv_max_V', 5.0):g} V per step")
+    if (config.get("mpc_approach_m") or 0.0) > 0:
+        parts.append(f"slowing within {1e3 * config['mpc_approach_m']:g} mm of the target (`--mpc-approach-mm`)")
+    if (config.get("mpc_standoff") or 0.0) > 0:
+        parts.append(f"stopping {config['mpc_standoff']:g} stds of its estimate short while that is uncertain "
+                     "(`--mpc-standoff`)")
+    return "; ".join(parts)
 
 
 def bands(series: list) -> dict:
