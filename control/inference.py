@@ -49,8 +49,9 @@ log = logging.getLogger(__name__)
 #: the initial values: the paper's m_c = 0.001 g; μ_b, μ_t below every setup's truth
 INITIAL = {"mass_kg": 1e-6, "mu_b": 0.15, "mu_t": 0.4, "v_threshold_V": 150.0}
 OPTIMIZERS = ("adam", "lm")
-#: the box each field is kept in while inferred (SI units): wide, only to stay finite
-BOUNDS = {"mass_kg": (1e-8, 1.0), "mu_b": (1e-3, 10.0), "mu_t": (1e-3, 10.0), "v_threshold_V": (1.0, 1e4)}
+#: the box each field is kept in while inferred (SI units), physical: a coin from the paper's
+#: start (0.001 g) to 100 g; dry friction coefficients of elastomer and steel pairs from 0.01 to 2
+BOUNDS = {"mass_kg": (1e-6, 0.1), "mu_b": (1e-2, 2.0), "mu_t": (1e-2, 2.0), "v_threshold_V": (1.0, 1e4)}
 #: a stated log-normal prior over the design card's coin family (field: (median, std of log)):
 #: coins of the scenes' geometry at ρ 7.7–7.8 g/cm³ weigh 1.36–1.38 g, μ_b 0.20–0.25,
 #: μ_t 0.50–0.55; each widened to a factor 2 at one standard deviation (log std ln 2).
