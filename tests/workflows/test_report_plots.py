@@ -135,3 +135,30 @@ def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
     slow = sections_control.mpc_settings_text({"dv_max_V": 5.0, "mpc_max_rate_V": 0.0, "mpc_approach_m": 1e-3,
                                                 "mpc_standoff": 2.0})
     assert "5 V per step" in slow and "within 1 mm" in slow and "2 stds" in slow
+
+
+def test_the_penalty_study_names_the_finest_patch_and_its_move_from_the_reference(tmp_path):
+    """The FEM accuracy section reads ``fem-study``'s penalty CSV when it is there: a row per
+    case, and a sentence with the finest patch's travel change from the reference (taken
+    from the file, not typed); without the file it says the bound covers the mesh only. Broken
+    once: the finest patch chosen by the fewest dofs (the sentence named the 1 mm patch)."""
+    from deapull.workflows.report import sections_fem
+    from deapull.workflows.report.document import Report, Section
+    from deapull.workflows.report.inputs import Inputs
+    study = tmp_path / "fem_study"
+    fields = ["case", "dofs", "points", "wall_s", "newton_its", "travel_mm", "travel_err_pct", "x_mae_pct",
+              "active_points", "pen_nodes_um", "pen_qp_um"]
+    rows = [{"case": "patch-1mm-9x9-k1000", "dofs": 5280, "travel_err_pct": 5.70, "active_points": 4},
+            {"case": "patch-0.5mm-9x9-k1000", "dofs": 8436, "travel_err_pct": 2.57, "active_points": 13},
+            {"case": "shipped-k100", "dofs": 1587, "travel_err_pct": 0.47, "active_points": 1}]
+    write_csv(study / "patch-penalty.csv", [{**{k: 1.0 for k in fields}, **r} for r in rows], fields)
+    rep = Report(tmp_path / "report", Inputs.under(tmp_path, fem_study=study), progress=False)
+    sec = Section("fem-accuracy", "t")
+    sections_fem.penalty_table(rep, sec)
+    tables = [b[1] for b in sec.blocks if b[0] == "table"]
+    text = " ".join(b[1] for b in sec.blocks if b[0] == "p")
+    assert len(tables) == 1 and [r[1] for r in tables[0].rows] == ["× 1,000", "× 1,000", "× 100"]
+    assert "patch-0.5mm-9x9-k1000" in text and "+2.57 %" in text, text
+    empty = Section("fem-accuracy", "t")
+    sections_fem.penalty_table(Report(tmp_path / "r2", Inputs.under(tmp_path / "none"), progress=False), empty)
+    assert "mesh only" in empty.blocks[0][1]

@@ -34,6 +34,7 @@ class Inputs:
     bench_fem: Path = Path("out/bench_fem")
     excitation: Path = Path("data/excitation")
     protocols: Path = Path("out/protocols")
+    fem_study: Path = Path("out/fem_study")
     reference: Path = REFERENCE_JSON
 
     @classmethod
@@ -45,7 +46,7 @@ class Inputs:
                    "control": root / "control", "control_fem": root / "control_fem",
                    "bench_control": root / "bench_control",
                    "bench_fem": root / "bench_fem", "excitation": Path(data) / "excitation",
-                   "protocols": root / "protocols", "reference": REFERENCE_JSON}
+                   "protocols": root / "protocols", "fem_study": root / "fem_study", "reference": REFERENCE_JSON}
         default.update({k: Path(v) for k, v in paths.items() if v is not None})
         return cls(data=Path(data), **default)
 
@@ -82,7 +83,7 @@ STEPS = (
     Step("control", "make control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 "
          "--episodes 10 --noise 0,1e-5,1e-4,1e-3 --out out/control", "the closed-loop episodes (Fig. 6)"),
     Step("control-fem", "make control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --episodes 1 "
-         "--noise 1e-4 --phi-prior coins --mpc-approach-mm 1.0 --mpc-standoff 2 --max-steps 3000 --out "
+         "--noise 1e-4 --phi-prior coins --mpc-max-rate 0.4 --max-steps 3000 --out "
          "out/control_fem", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)"),
     Step("bench-control", "make bench-control", "python bench/bench_control.py --out out/bench_control",
          "the MPC step beside mpc.pytorch"),
