@@ -9,6 +9,8 @@ import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.transforms import blended_transform_factory  # noqa: E402
 
 from deapull.io import atomic_write  # noqa: E402
 from deapull.paper import ABAQUS_S as ABAQUS_S_LINE  # noqa: E402
@@ -61,8 +63,6 @@ def draw_error_time(points: list[dict], control: list[dict]):
     :func:`sections_error_time.error_time_points`); right: the control episodes (``control``).
     A point without a finite positive error is never drawn as one: diverged models sit on the top
     edge with the word, references with error 0 on the bottom edge, inputs not run in grey text."""
-    from matplotlib.lines import Line2D
-    from matplotlib.transforms import blended_transform_factory
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6.4), gridspec_kw={"width_ratios": [1.35, 1]})
     edge = blended_transform_factory(ax.transData, ax.transAxes)
     walls = [p["wall_s"] for p in points if _finite_pos(p["wall_s"])]
