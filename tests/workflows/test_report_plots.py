@@ -159,6 +159,8 @@ def test_the_penalty_study_names_the_finest_patch_and_its_move_from_the_referenc
     text = " ".join(b[1] for b in sec.blocks if b[0] == "p")
     assert len(tables) == 1 and [r[1] for r in tables[0].rows] == ["× 1,000", "× 1,000", "× 100"]
     assert "patch-0.5mm-9x9-k1000" in text and "+2.57 %" in text, text
+    claim = rep.claims[-1]
+    assert "+2.57 %" in claim.ours and claim.anchor == "#penalty-1" and claim.outcome == ""
     empty = Section("fem-accuracy", "t")
     sections_fem.penalty_table(Report(tmp_path / "r2", Inputs.under(tmp_path / "none"), progress=False), empty)
     assert "mesh only" in empty.blocks[0][1]
