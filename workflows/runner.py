@@ -8,7 +8,7 @@ solves cases g, g + N/K, … of those not yet done. Each finished case leaves on
 stopped and a file that exists is whole. A case whose scene fails validation becomes a
 ``rejected`` row without solving; a solve that fails after its cut-backs becomes a
 ``failed`` row with PETSc's reason (and its accepted steps as ``partial.nc``); a crash is
-an ``error`` row — never the end of the study.
+an ``error`` row — never the end of the study — and is solved again when the study resumes.
 
 Two MPI details are handled here once: PETSc is initialised on every rank before the
 groups split (its initialisation is collective on COMM_WORLD, and a rank with no case
@@ -241,7 +241,8 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
         ``is_done(case, scene) -> bool``: whether the case's own output is there (the sweep:
         a complete dataset made with the resolved ``scene``). Given it, a stored "ok" result
         counts only with its output (a deleted dataset is solved again); a failed or
-        rejected result still counts. The stored result of a done case, if any, is returned.
+        rejected result still counts. An ``error`` result (a crash) never counts: it is solved
+        again on resume. The stored result of a done case, if any, is returned.
     """
     out_dir = Path(out_dir)
     names = [c.name for c in cases]
@@ -254,6 +255,8 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
     def done(case):
         scene = resolved.get(case.name)
         stored = load_result(out_dir, case, scene)
+        if stored is not None and stored.get("status") == "error":
+            return False        # a crash is the code's, not the case's: solved again on resume
         if is_done is None:
             return stored is not None
         # a study with outputs of its own (the sweep's datasets): an "ok" result whose output

@@ -232,3 +232,23 @@ def test_a_case_whose_output_is_gone_is_solved_again(tmp_path):
     outputs.clear()                                            # the datasets were deleted
     run_cases(cases, tmp_path, MPI.COMM_WORLD, solve=fake_solve, is_done=is_done)
     assert solved == ["good", "bad", "good"]                   # the ok case again, not the failed one
+
+
+def test_a_crashed_case_is_solved_again_on_resume_a_failed_one_is_not(tmp_path):
+    """A crash (``error`` row: a bug, not the case's physics) does not count as done, so a
+    resumed study runs it again once the bug is fixed; a failed solve (PETSc's reason) stays
+    a row. Broken once: error rows counted as done (the crashed case was not solved again)."""
+    solved, crash = [], {"crash": True}
+
+    def fake_solve(case, scene, out, group, progress):
+        solved.append(case.name)
+        if case.name == "crashes" and crash["crash"]:
+            return {"status": "error", "reason": "TypeError: a bug", "steps": 0}
+        return {"status": "failed" if case.name == "diverges" else "ok", "steps": 1}
+
+    cases = [Case(n, "coin_pull", "C3", TINY, n) for n in ("crashes", "diverges")]
+    run_cases(cases, tmp_path, MPI.COMM_WORLD, solve=fake_solve)
+    crash["crash"] = False                                     # the bug is fixed
+    rows = run_cases(cases, tmp_path, MPI.COMM_WORLD, solve=fake_solve)
+    assert solved == ["crashes", "diverges", "crashes"]
+    assert [r["status"] for r in rows] == ["ok", "failed"]
