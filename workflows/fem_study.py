@@ -160,10 +160,14 @@ def solve(out: Path, name: str, overrides, extra=(), ranks: int = 1) -> Path:
     for o in (*overrides, *extra):
         cmd += ["--set", o]
     log.info("%s: %s", name, " ".join(cmd[cmd.index("-m") + 2:]))
+    (out / name).mkdir(parents=True, exist_ok=True)
+    solve_log = out / name / "solve.log"      # the solve's own progress and log, as it runs
+    log.info("%s: follow it with: tail -f %s", name, solve_log)
     start = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    with open(solve_log, "w") as stream:
+        proc = subprocess.run(cmd, stdout=stream, stderr=subprocess.STDOUT, text=True, env=env)
     if proc.returncode != 0:
-        raise RuntimeError(f"case {name} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+        raise RuntimeError(f"case {name} failed ({proc.returncode}):\n{solve_log.read_text()[-2000:]}")
     log.info("%s: done in %.0f s", name, time.perf_counter() - start)
     return path
 
