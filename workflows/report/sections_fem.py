@@ -338,8 +338,9 @@ def penalty_table(rep: Report, sec: Section) -> None:
         finest = max(patches, key=lambda r: (int(r["dofs"]), penalty_factor(r["case"])))
         sec.p(f"The reference's bound is the mesh's only: on the finest patch here ({finest['case']}, "
               f"{finest['active_points']} contact points) the penalty × {penalty_factor(finest['case']):,} moves the "
-              f"travel {fmt(num(finest, 'travel_err_pct'), '+.2f', '%')} from the reference: on a resolved patch the shipped penalty lets "
-              "the DEA sink ~0.1 mm into the coin's rim, and every dataset is made with it (docs/fem_accuracy.md).")
+              f"travel {fmt(num(finest, 'travel_err_pct'), '+.2f', '%')} from the reference: on a resolved patch the "
+              "shipped penalty lets the DEA sink ~0.1 mm into the coin's rim, and every dataset is made with it "
+              "(docs/fem_accuracy.md).")
         rep.claims.append(Claim("Contact convergence of the FEM (not in the paper)", "not reported",
                                 f"the coin's penalty × {penalty_factor(finest['case']):,} moves the C3 travel "
                                 f"{fmt(num(finest, 'travel_err_pct'), '+.2f', '%')} on the finest patch "
