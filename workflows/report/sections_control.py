@@ -11,7 +11,7 @@ from deapull.paper import (CONTROL, CONTROL_NOISE_M, INFER_ERROR_PCT, INFER_MASS
                            INFER_MU_B_ITERATIONS, MPC_S_PER_ITERATION)
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.plots import BAND_PERCENTILES, plot_bands
-from deapull.workflows.report.tabular import csv_text, fmt, markdown_tables, num, read_csv
+from deapull.workflows.report.tabular import csv_text, fmt, markdown_tables, num, read_csv, run_config
 
 #: the band CSV keeps every k-th iteration (and the last), k chosen so a line has at most this many rows
 BAND_CSV_ROWS = 250
@@ -135,16 +135,16 @@ def section_control_fem(rep: Report) -> Section:
           "position and holds V once the estimate is inside the window. The paper runs control on its surrogates "
           "only. Settled = the true position stays within ±0.01 mm for the whole hold after the first success.")
     rows = read_csv(csv_path)
-    runs = [("Single target", folder / "run.json")]
+    runs = [("Single target", folder)]
     multi = folder / "multi" / "control.csv"
     if multi.is_file():
         rep.source(multi, sec)
         rows += read_csv(multi)
-        runs.append(("Multi-setpoint task", folder / "multi" / "run.json"))
-    for label, run_json in runs:
-        if run_json.is_file():
-            rep.source(run_json, sec)
-            sec.p(f"{label}: {mpc_settings_text(json.loads(run_json.read_text()).get('config') or {})}.")
+        runs.append(("Multi-setpoint task", folder / "multi"))
+    for label, run_folder in runs:
+        if (run_folder / "run.json").is_file():
+            rep.source(run_folder / "run.json", sec)
+            sec.p(f"{label}: {mpc_settings_text(run_config(run_folder))}.")
     t_rows, anchors = [], []
     for i, r in enumerate(rows):
         t_rows.append([r["plant"], r.get("setpoints_mm", ""), r.get("iterations_per_setpoint") or
@@ -234,10 +234,7 @@ def _bands(rep: Report, sec: Section, folder) -> None:
     if not panels:
         sec.p(f"`{path}` holds no coin positions (keys `policy|plant|noise|episode|x_m`).")
         return
-    config = {}
-    run_json = folder / "run.json"
-    if run_json.is_file():
-        config = json.loads(run_json.read_text()).get("config") or {}
+    config = run_config(folder)
     target = config.get("target_m") if not config.get("setpoints_m") else None
     tol = config.get("tolerance_m")
     plot_bands(panels, rep.img / "control_bands.png", 1e3 * target if target is not None else None,

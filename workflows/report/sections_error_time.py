@@ -36,7 +36,7 @@ import numpy as np
 from deapull.paper import ABAQUS_S
 from deapull.workflows.report.document import Report, Section, Table
 from deapull.workflows.report.plots import BOUND, TRAVEL, X_MAE, plot_error_time
-from deapull.workflows.report.tabular import csv_text, fmt, num, read_csv
+from deapull.workflows.report.tabular import csv_text, fmt, num, read_csv, run_config
 
 POINT_COLUMNS = ("group", "label", "metric", "wall_s", "error_pct", "status", "make", "source")
 CONTROL_COLUMNS = ("policy", "plant", "noise_std_m", "episodes", "reached", "episode_wall_s_median",
@@ -160,10 +160,7 @@ def control_points(folder: Path, make: str) -> list[dict]:
     path = folder / "control.csv"
     if not path.is_file():
         return [dict(policy="–", plant="–", status="not run", make=make, source=str(path))]
-    target = -1e-3
-    run_json = folder / "run.json"
-    if run_json.is_file():
-        target = (json.loads(run_json.read_text()).get("config") or {}).get("target_m") or target
+    target = run_config(folder).get("target_m") or -1e-3
     rows = read_csv(path)
     groups: dict = {}
     for r in rows:

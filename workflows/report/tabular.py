@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import re
 from pathlib import Path
@@ -32,6 +33,12 @@ def csv_text(rows: list[dict], columns) -> str:
 def read_csv(path: Path) -> list[dict]:
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
+
+
+def run_config(folder: Path) -> dict:
+    """The ``config`` of a ``deapull control`` run (its ``run.json`` in ``folder``); {} without one."""
+    path = Path(folder) / "run.json"
+    return (json.loads(path.read_text()).get("config") or {}) if path.is_file() else {}
 
 
 def num(row: dict, key: str) -> float | None:
