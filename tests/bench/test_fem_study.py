@@ -50,3 +50,20 @@ def test_bad_studies_cases_or_reference_are_refused_before_any_run(tmp_path, mon
     (ref / "reference.json").write_text("{}")
     with pytest.raises(InputError, match="--cases: foo not in study 'shipped'"):
         fem_study.run_studies(["shipped"], tmp_path / "out", ref, cases=["foo"])
+
+
+def test_a_case_writes_its_solve_log_as_it_runs_and_a_failure_quotes_it(tmp_path, monkeypatch):
+    """``fem-study`` runs each case as a child ``deapull solve``; the child's output goes to
+    ``<case>/solve.log`` while it runs, and a failed child is reported with that log's tail.
+    A stand-in interpreter (a shell script) plays the child so that nothing is solved. Broken
+    once: the output captured in memory again (no solve.log)."""
+    from deapull.workflows import fem_study
+    child = tmp_path / "python"
+    child.write_text("#!/bin/sh\necho 'placement 40 %' >&2\necho 'DIVERGED_MAX_IT at t = 0.5 s'\nexit 3\n")
+    child.chmod(0o755)
+    monkeypatch.setattr(fem_study.sys, "executable", str(child))
+    with pytest.raises(RuntimeError, match="DIVERGED_MAX_IT") as err:
+        fem_study.solve(tmp_path / "study", "case-a", ())
+    assert "(3)" in str(err.value)
+    log = (tmp_path / "study" / "case-a" / "solve.log").read_text()
+    assert "placement 40 %" in log and "DIVERGED_MAX_IT" in log
