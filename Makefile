@@ -45,7 +45,7 @@ bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the converged re
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
 
 FEM_STUDY ?= reference,patch-rule,shipped
-fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule, the shipped default against it (FEM_STUDY=all: every study); resumes; ~1 h
+fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule, the shipped default against it (FEM_STUDY=all: every study); resumes; ~1.5 h on one core
 	$(DEAPULL) fem-study --study $(FEM_STUDY) --out $(OUT)/fem_study
 
 fidelity: setup ## error against run time ladder on coin_pull C3 (issue 4)

@@ -6,6 +6,7 @@ friction without a coin or stop, no potential unless ``solver.electrostatics = "
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 from dataclasses import dataclass
@@ -139,10 +140,12 @@ class DEAProblem:
         if self.obstacle is not None:
             lay = self.layout
             self.mu_t = dolfinx.fem.Constant(self.mesh, float(self.obstacle.mu_t))
+            # a Constant, so that placement can raise a stiff penalty by continuation (Stepper.start)
+            self.penalty = dolfinx.fem.Constant(self.mesh, float(sc.contact.penalty_N_m3))
             self.contact = contact.contact_terms(
                 u, self.u_old, v, self.X, self.X_old, self.dt, self.ds_contact,
                 center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
-                edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=sc.contact.penalty_N_m3,
+                edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=self.penalty,
                 slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
             energy += self.contact.energy
         self.table = None
@@ -241,6 +244,15 @@ class DEAProblem:
         opts[key] = kind
         self.snes.setFromOptions()
         del opts[key]
+
+    @contextlib.contextmanager
+    def newton_max_it(self, max_it: int):
+        """Newton's iteration cap set to ``max_it`` inside the block (the scene's outside)."""
+        self.snes.setTolerances(max_it=max_it)
+        try:
+            yield
+        finally:
+            self.snes.setTolerances(max_it=self.scene.solver.newton_max_it)
 
     def factor_package(self) -> str:
         """``solver.linear_solver``, or mumps when the mesh is split over ranks and the

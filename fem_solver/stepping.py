@@ -111,6 +111,15 @@ class StepRecord:
 
 
 PLACEMENT_MIN_STEP = 1e-3  # smallest gravity-continuation step of the initial placement
+#: a stiffer coin penalty than this is reached at placement by continuation from it (geometric in
+#: k_n, after gravity): at x 100 the shipped 2.24e9 N/m^3 on the 0.5 mm patch, gravity continuation
+#: stalled at 0.56 g (steps cut below 1e-3 with a 12-iteration cap; 11 of the run's 17 minutes
+#: with 40), while gravity at the shipped penalty, then k_n raised, places it in 120 s
+PLACEMENT_PENALTY_N_M3 = 2.24e9
+#: Newton's cap in a continuation step of the placement: a cut step is cheaper than a long
+#: failing solve (on the 0.5 mm patch a 40-iteration failure took 95 s, a 12-iteration one 20 s;
+#: placement 660 s -> 120 s with the penalty continuation)
+PLACEMENT_MAX_IT = 12
 #: largest move of the DEA's free-end face in one (sub-)step, as a fraction of the DEA's thickness;
 #: a converged solve that moves it further jumped to another equilibrium branch and is cut back
 #: (legitimate steps move it by a small fraction of h, the branch jumps it rejects by many h: docs/physics.md)
@@ -269,7 +278,21 @@ class Stepper:
             self.p.gravity_scale.value = scale
             return self._coupled_solve(0.0 if V > 0 else V, dt)
 
+        penalty = getattr(self.p, "penalty", None)   # the coin's normal penalty (None: no obstacle)
+        k_target = float(penalty.value) if penalty is not None else 0.0
+        k_place = min(k_target, PLACEMENT_PENALTY_N_M3)
+        if penalty is not None:
+            penalty.value = k_place
         its, cits, forces = self._continuation("placement under gravity", gravity, V)
+        if k_place < k_target:   # a stiff penalty: raised geometrically from the settled soft contact
+
+            def stiffen(scale):
+                penalty.value = k_place * (k_target / k_place) ** scale
+                return self._coupled_solve(0.0 if V > 0 else V, dt)
+
+            k_its, cits, forces = self._continuation("placement, penalty raised", stiffen, V)
+            its += k_its
+            penalty.value = k_target
         if V > 0:   # a protocol that starts actuated (release): then raise the voltage, still frictionless
             k_its, cits, forces = self._continuation("placement at the initial voltage",
                                                      lambda scale: self._coupled_solve(scale * V, dt), V)
@@ -444,7 +467,8 @@ class Stepper:
         good = self.p.w.x.array.copy()
         while done < 1.0:
             scale = min(1.0, done + step)
-            ok, reason, k_its, cits, coin, forces = solve_at(scale)
+            with self.p.newton_max_it(min(PLACEMENT_MAX_IT, self.scene.solver.newton_max_it)):
+                ok, reason, k_its, cits, coin, forces = solve_at(scale)
             its += k_its
             if ok:
                 done, step, good[:] = scale, step * 1.5, self.p.w.x.array

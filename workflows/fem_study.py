@@ -60,20 +60,34 @@ def patch(size_mm: float, degree: int = 16) -> tuple:
             f"mesh.rim_band_divisions={n}", f"contact.quadrature_degree={degree}")
 
 
-#: the reference ladder: the resolved patch at 2 / 1 / 0.5 mm, 9 x 9 Gauss points per contact
-#: facet (points ~0.22 / 0.11 / 0.06 mm apart). The 0.25 mm level (16,260 dofs, ~35 min on one core)
-#: is the study ``patch-fine`` (docs/fem_accuracy.md).
-PATCH_SIZES_MM = (2.0, 1.0, 0.5)
-REFERENCE = {f"patch-{h:g}mm-9x9": patch(h) for h in PATCH_SIZES_MM}
+def stiff(size_mm: float, times: int) -> tuple:
+    """The resolved patch of ``size_mm`` with the coin's penalty ``times`` the shipped 2.24e9 N/m^3."""
+    return (*patch(size_mm), f"contact.penalty_N_m3={2.24e9 * times:g}")
+
+
+#: the reference ladder (issue 23): the resolved patch at 1 / 0.5 / 0.25 mm with the coin's
+#: penalty x 1000 (near rigid: at most ~2 um into the coin), 9 x 9 Gauss points per contact facet.
+#: At the shipped penalty the resolved patch sinks ~0.1 mm into the coin, so the old ladder
+#: (2 / 1 / 0.5 mm at x 1, now the study ``patch-soft``) converged to a softer coin's travel.
+PATCH_SIZES_MM = (1.0, 0.5, 0.25)
+REFERENCE_TIMES = 1000
+REFERENCE = {f"patch-{h:g}mm-9x9-k{REFERENCE_TIMES}": stiff(h, REFERENCE_TIMES) for h in PATCH_SIZES_MM}
 REFERENCE_RATIOS = (PATCH_SIZES_MM[0] / PATCH_SIZES_MM[1], PATCH_SIZES_MM[1] / PATCH_SIZES_MM[2])
 REFERENCE_ORDER = tuple(REFERENCE)
+#: the penalty's share of the bound: the 0.5 mm level at x 100 against x 1000 (the travel's
+#: penalty error goes as 1/k_n, so the x 1000 level keeps 1/9 of their difference)
+PENALTY_PAIR = ("patch-0.5mm-9x9-k100", f"patch-0.5mm-9x9-k{REFERENCE_TIMES}")
+REFERENCE[PENALTY_PAIR[0]] = stiff(0.5, 100)
+#: the resolved patch at the shipped penalty (the reference before the near-rigid ladder)
+SOFT_SIZES_MM = (2.0, 1.0, 0.5)
+PATCH_SOFT = {f"patch-{h:g}mm-9x9": patch(h) for h in SOFT_SIZES_MM}
 PATCH_FINE = {"patch-0.25mm-9x9": patch(0.25)}
-#: the contact rule on the patch levels: 5 x 5 against the ladder's 9 x 9
-PATCH_RULE = {f"patch-{h:g}mm-5x5": patch(h, 8) for h in PATCH_SIZES_MM}
+#: the contact rule on the patch levels: 5 x 5 against the soft ladder's 9 x 9
+PATCH_RULE = {f"patch-{h:g}mm-5x5": patch(h, 8) for h in SOFT_SIZES_MM}
 #: the coin's penalty x 10 to x 1000 on the resolved patch, and x 100, x 1000 on the shipped mesh (at the
 #: shipped penalty the resolved patch sinks far deeper into the coin than the shipped mesh's one point:
 #: docs/fem_accuracy.md)
-PATCH_PENALTY = {**{f"patch-{h:g}mm-9x9-k{k}": (*patch(h), f"contact.penalty_N_m3={2.24e9 * k:g}")
+PATCH_PENALTY = {**{f"patch-{h:g}mm-9x9-k{k}": stiff(h, k)
                     for h, ks in ((1.0, (10, 100, 1000)), (0.5, (100, 1000)), (0.25, (1000,))) for k in ks},
                  **{f"shipped-k{k}": (f"contact.penalty_N_m3={2.24e9 * k:g}",) for k in (100, 1000)}}
 
@@ -136,7 +150,7 @@ CANDIDATES = {
     "half-16x10-g8": (*HALF, *UMF, *mesh(16, 10), *quad("gauss", 8)),
 }
 
-STUDIES = {"reference": REFERENCE, "patch-rule": PATCH_RULE, "patch-fine": PATCH_FINE, "patch-penalty": PATCH_PENALTY, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED}
+STUDIES = {"reference": REFERENCE, "patch-soft": PATCH_SOFT, "patch-rule": PATCH_RULE, "patch-fine": PATCH_FINE, "patch-penalty": PATCH_PENALTY, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED}
 
 
 def mpirun_env() -> dict:
@@ -215,10 +229,35 @@ def richardson(travels, ratios):
     return p, extrap, GCI_SAFETY * abs(extrap - f3)
 
 
+def reference_estimate(travels, ratios, penalty_pair) -> dict:
+    """The reference travel and its stated bound from the ladder's three ``travels`` (coarse to
+    fine, refinement ``ratios``) and the ``penalty_pair`` (the 0.5 mm level's travel at x 100 and
+    at the reference penalty).
+
+    Mesh share: with an observed order, the GCI of :func:`richardson`; without one (oscillating
+    levels), the two finest levels' difference; the three levels' spread is kept beside it. Penalty
+    share: the travel's penalty error goes as 1/k_n, so the x ``REFERENCE_TIMES`` level keeps
+    (1/1000) / (1/100 - 1/1000) = 1/9 of the pair's difference. The bound is their sum.
+    """
+    p, extrap, gci = richardson(travels, ratios)
+    if math.isfinite(p):
+        mesh_bound, how = gci, f"observed order {p:.2f}, GCI"
+    else:
+        extrap, mesh_bound = travels[-1], abs(travels[-1] - travels[-2])
+        how = "no observed order (the levels oscillate): the two finest levels' difference"
+    k = 1.0 / REFERENCE_TIMES
+    penalty_bound = abs(penalty_pair[1] - penalty_pair[0]) * k / (1.0 / 100 - k)
+    return {"observed_order": p, "travel_extrapolated_m": extrap, "mesh_bound_m": mesh_bound,
+            "mesh_bound_is": how, "three_level_spread_m": max(travels) - min(travels),
+            "penalty_bound_m": penalty_bound, "travel_error_bound_m": mesh_bound + penalty_bound}
+
+
 def reference_summary(out: Path) -> dict:
     runs = [columns(out / n / "C3.nc") for n in REFERENCE_ORDER]
     travels = [float(np.max(np.abs(r.columns["x"]))) for r in runs]
-    p, extrap, bound = richardson(travels, REFERENCE_RATIOS)
+    pair = [float(np.max(np.abs(columns(out / n / "C3.nc").columns["x"]))) for n in PENALTY_PAIR]
+    est = reference_estimate(travels, REFERENCE_RATIOS, pair)
+    extrap, bound = est["travel_extrapolated_m"], est["travel_error_bound_m"]
     fine = runs[-1]
     t = fine.columns["t"]
     mae = [float(np.mean(np.abs(np.interp(t, r.columns["t"], r.columns["x"]) - fine.columns["x"])))
@@ -226,20 +265,19 @@ def reference_summary(out: Path) -> dict:
     dofs = [int(r.attrs["mesh_dofs"]) for r in runs]
     eps = float(fine.attrs["contact_slip_rate_reg_m_s"])
     active = [int(np.median(r.columns["n_contact"])) for r in runs]
-    what, bound_is = (("Richardson travel", f"observed order {p:.2f}") if math.isfinite(p) else
-                      ("finest level (the levels do not converge monotonically, no Richardson estimate)",
-                       "bound: the larger level difference"))
-    label = (f"{what} of the resolved-patch ladder {' / '.join(f'{h:g}' for h in PATCH_SIZES_MM)} mm (coin_pull C3 "
-             f"with the table, half model, dofs {' / '.join(f'{d:,}' for d in dofs)}; 9 x 9 Gauss contact points, "
-             f"{' / '.join(map(str, active))} active at the median step; 1/720 s, eps_v {eps:g} m/s), "
-             f"{bound_is}; x(t) of the finest level")
+    what = "Richardson travel" if math.isfinite(est["observed_order"]) else "finest level"
+    label = (f"{what} of the resolved-patch ladder {' / '.join(f'{h:g}' for h in PATCH_SIZES_MM)} mm at x "
+             f"{REFERENCE_TIMES} the shipped coin penalty (coin_pull C3 with the table, half model, dofs "
+             f"{' / '.join(f'{d:,}' for d in dofs)}; 9 x 9 Gauss contact points, {' / '.join(map(str, active))} "
+             f"active at the median step; 1/720 s, eps_v {eps:g} m/s); bound: mesh ({est['mesh_bound_is']}) "
+             f"+ penalty (1/k_n from x 100 -> x {REFERENCE_TIMES}); x(t) of the finest level")
     return {"cases": list(REFERENCE_ORDER), "travel_m": travels, "dofs": dofs, "median_active_contact_points": active,
-            "wall_s": [float(r.attrs["wall_time_total_s"]) for r in runs], "observed_order": p,
-            "travel_extrapolated_m": extrap, "travel_error_bound_m": bound,
-            "travel_error_bound_rel": bound / travels[-1], "x_mae_vs_finest_m": mae,
+            "wall_s": [float(r.attrs["wall_time_total_s"]) for r in runs], **est,
+            "penalty_pair": list(PENALTY_PAIR), "penalty_pair_travel_m": pair,
+            "travel_error_bound_rel": bound / extrap, "x_mae_vs_finest_m": mae,
             "label": label,
             "travel_ref_m": extrap,
-            "error_bound_rel": bound / travels[-1],
+            "error_bound_rel": bound / extrap,
             "slip_rate_reg_m_s": eps,
             "finest": str(out / REFERENCE_ORDER[-1] / "C3.nc")}
 
@@ -287,6 +325,11 @@ def ladder_table(ref: dict) -> str:
     what = f"observed order {p:.2f}, Richardson travel" if math.isfinite(p) else "no observed order; finest level"
     lines.append(f"{what} {1e3 * ref['travel_extrapolated_m']:.4f} mm ± {1e3 * ref['travel_error_bound_m']:.4f} mm "
                  f"({100 * ref['travel_error_bound_rel']:.2f} % of it; goal: a stated bound ≤ 1 %)")
+    if "mesh_bound_m" in ref:
+        travel = ref["travel_extrapolated_m"]
+        lines.append(f"  the bound's parts: mesh {100 * ref['mesh_bound_m'] / travel:.2f} % ({ref['mesh_bound_is']}), "
+                     f"penalty {100 * ref['penalty_bound_m'] / travel:.2f} % ({' vs '.join(ref['penalty_pair'])}); "
+                     f"the three levels span {100 * ref['three_level_spread_m'] / travel:.2f} %")
     return "\n".join(lines)
 
 

@@ -67,3 +67,24 @@ def test_a_case_writes_its_solve_log_as_it_runs_and_a_failure_quotes_it(tmp_path
     assert "(3)" in str(err.value)
     log = (tmp_path / "study" / "case-a" / "solve.log").read_text()
     assert "placement 40 %" in log and "DIVERGED_MAX_IT" in log
+
+
+def test_the_reference_bound_adds_the_mesh_and_the_penalty_shares():
+    """The penalty share: a travel f(k) = f_rigid + c / k measured at x 100 and x 1000 leaves
+    the x 1000 level c / k_1000 from the rigid limit, which the share must equal. The mesh share:
+    with an order, the GCI; oscillating levels, the two finest levels' difference (the spread of
+    all three is kept). Broken once: the share as the pair's whole difference (9x too large)."""
+    from deapull.workflows.fem_study import REFERENCE_TIMES, reference_estimate
+    f_rigid, c = 1.311e-3, -3.9e-3 * 2.24e9            # k in units of the shipped 2.24e9 N/m^3
+    pair = [f_rigid + c / (2.24e9 * k) for k in (100, REFERENCE_TIMES)]
+    oscillating = [1.3470e-3, 1.3071e-3, 1.3112e-3]
+    est = reference_estimate(oscillating, (2.0, 2.0), pair)
+    assert est["penalty_bound_m"] == pytest.approx(abs(pair[1] - f_rigid), rel=1e-9)
+    assert math.isnan(est["observed_order"]) and est["travel_extrapolated_m"] == oscillating[-1]
+    assert est["mesh_bound_m"] == pytest.approx(0.0041e-3)
+    assert est["three_level_spread_m"] == pytest.approx(0.0399e-3)
+    assert est["travel_error_bound_m"] == pytest.approx(est["mesh_bound_m"] + est["penalty_bound_m"])
+    smooth = [1.3e-3 + 0.4e-3 * h ** 2 for h in H]
+    est = reference_estimate(smooth, RATIOS, pair)
+    assert est["observed_order"] == pytest.approx(2.0, rel=1e-6)
+    assert est["mesh_bound_m"] == pytest.approx(GCI_SAFETY * abs(smooth[-1] - 1.3e-3), rel=1e-6)

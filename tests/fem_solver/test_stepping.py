@@ -326,6 +326,32 @@ def test_placement_lands_on_the_same_equilibrium_whatever_its_first_step(tmp_pat
     tip, Fy, its = placed[1.0]
     assert len({p[2] for p in placed.values()}) > 1                    # the paths differ
     for first in (0.25, 0.1):
-        assert np.abs(placed[first][0] - tip).max() <= 1e-9 * np.abs(tip).max(), first
+        # to the Newton tolerance: atol 1e-8 N over the tip's ~200 N/m is 5e-11 m (measured:
+        # 4.4e-12 m with the placement's 12-iteration cap, below 4e-12 m without it)
+        assert np.abs(placed[first][0] - tip).max() <= 1e-8 * np.abs(tip).max(), first
         # forces to the Newton residual's absolute tolerance (N; measured: 1.2e-9 N of 4 mN)
         assert abs(placed[first][1] - Fy) <= stepper.scene.solver.newton_atol, first
+
+
+def test_a_stiff_penalty_is_placed_by_continuation_onto_the_same_equilibrium(tmp_path, monkeypatch):
+    """A coin penalty above ``PLACEMENT_PENALTY_N_M3`` is placed at that penalty, then raised
+    to the scene's: the placed state is the one a direct placement at the stiff penalty
+    reaches (to the Newton tolerance), the penalty ends at the scene's value and Newton's cap
+    is the scene's again. Broken once: the raise skipped (the penalty stayed at the
+    placement's: the penalty assert, and without it the tip 2.9e-7 m off)."""
+    from deapull.fem_solver import stepping
+    k = "contact.penalty_N_m3=1.12e11"              # x 100 the fixture's
+    direct = _stepper(tmp_path / "direct", k)
+    monkeypatch.setattr(stepping, "PLACEMENT_PENALTY_N_M3", math.inf)
+    ref = direct.start()
+    monkeypatch.setattr(stepping, "PLACEMENT_PENALTY_N_M3", 1.12e9)
+    stepper = _stepper(tmp_path / "raised", k)
+    rec = stepper.start()
+    p = stepper.p
+    assert float(p.penalty.value) == 1.12e11
+    assert p.snes.getTolerances()[3] == stepper.scene.solver.newton_max_it
+    tip, tip_ref = p.tip_displacement(), direct.p.tip_displacement()
+    assert np.abs(tip - tip_ref).max() <= 1e-9 * np.abs(tip_ref).max()
+    # the force is k_n times a depth converged to the Newton tolerance: at this k_n the two
+    # placements' Fy differ by 1.2e-8 N of 4 mN (measured)
+    assert abs(rec.Fy - ref.Fy) <= 1e-5 * abs(ref.Fy)
