@@ -24,7 +24,7 @@ def cmd_control(args) -> int:
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
-        mpc_max_rate_V=args.mpc_max_rate,
+        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep,
         infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=args.overrides, progress=not args.no_progress,
@@ -91,6 +91,9 @@ def register(sub) -> None:
                    help="ramp-rate-aware MPC: at most this |dV| per step (V), in its plan and on the plant; a "
                         "slow push carries a heavy coin further (e.g. 0.4, the sweep's 0-400 V in 1 s; default 0: "
                         "--dv-max)")
+    p.add_argument("--mpc-creep", type=float, default=0.5,
+                   help="the MPC's smallest |dV| per step outside the hold (V; default 0.5, capped by the rate); below "
+                        "it --mpc-approach-mm can slow the last stretch, e.g. 0.1 with --mpc-approach-mm 0.05")
     p.add_argument("--mpc-standoff", type=float, default=0.0,
                    help="under noise the MPC stops this many stds of its position estimate short of the target and "
                         "holds V until the observations have averaged the estimate down, then goes on (default 0: "

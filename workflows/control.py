@@ -110,6 +110,7 @@ class ControlConfig:
     mpc_no_infer: bool = False
     mpc_approach_m: float = 0.0
     mpc_max_rate_V: float = 0.0
+    mpc_creep_V: float = MPCConfig.creep_V
     mpc_standoff: float = 0.0
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
@@ -207,6 +208,8 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> None:
             raise InputError(f"--mpc-standoff {config.mpc_standoff!r}: must be a finite number >= 0 (stds)")
         if not (math.isfinite(config.mpc_max_rate_V) and config.mpc_max_rate_V >= 0):
             raise InputError(f"--mpc-max-rate {config.mpc_max_rate_V!r}: must be a finite number >= 0 (V per step)")
+        if not (math.isfinite(config.mpc_creep_V) and config.mpc_creep_V > 0):
+            raise InputError(f"--mpc-creep {config.mpc_creep_V!r}: must be a finite number > 0 (V per step)")
         if not (math.isfinite(config.mpc_approach_m) and config.mpc_approach_m >= 0):
             raise InputError(f"--mpc-approach-mm {1e3 * config.mpc_approach_m!r}: must be a finite number >= 0 (mm)")
         if config.mpc_no_infer and (config.phi_prior != "coins" or config.mpc_oracle):
@@ -304,7 +307,7 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
     return MPCConfig(cost=config.mpc_cost, infer=not (config.mpc_oracle or config.mpc_no_infer), filter=filter,
                      offset_free=not plain, hold_band=0.0 if plain else MPCConfig.hold_band,
                      approach_m=0.0 if plain else config.mpc_approach_m,
-                     max_rate_V=0.0 if plain else config.mpc_max_rate_V,
+                     max_rate_V=0.0 if plain else config.mpc_max_rate_V, creep_V=config.mpc_creep_V,
                      standoff_stds=0.0 if plain else config.mpc_standoff,
                      inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
 

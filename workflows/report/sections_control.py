@@ -173,7 +173,9 @@ def mpc_settings_text(config: dict) -> str:
     parts.append(f"at most {rate:g} V per step (`--mpc-max-rate`)" if rate > 0 else
                  f"up to the plant's {config.get('dv_max_V', 5.0):g} V per step")
     if (config.get("mpc_approach_m") or 0.0) > 0:
-        parts.append(f"slowing within {1e3 * config['mpc_approach_m']:g} mm of the target (`--mpc-approach-mm`)")
+        creep = config.get("mpc_creep_V") or 0.5
+        parts.append(f"slowing within {1e3 * config['mpc_approach_m']:g} mm of the target (`--mpc-approach-mm`) "
+                     f"down to {creep:g} V per step (`--mpc-creep`)")
     if (config.get("mpc_standoff") or 0.0) > 0:
         parts.append(f"stopping {config['mpc_standoff']:g} stds of its estimate short while that is uncertain "
                      "(`--mpc-standoff`)")
