@@ -32,7 +32,8 @@ def main(argv=None) -> int:
     ap.add_argument("--hold", type=int, default=100)
     ap.add_argument("--max-steps", type=int, default=3000)
     ap.add_argument("--max-rate", type=float, default=0.4, help="the MPC's |dV| per step (V; as make control-fem)")
-    ap.add_argument("--approach-mm", type=float, default=0.0, help="the MPC's approach limit (as make control-fem)")
+    ap.add_argument("--approach-mm", type=float, default=0.1, help="the MPC's approach limit (mm; as make control-fem)")
+    ap.add_argument("--creep", type=float, default=0.1, help="the MPC's smallest |dV| per step (V; as make control-fem)")
     ap.add_argument("--standoff", type=float, default=0.0, help="the MPC's stand-off in stds (as make control-fem)")
     ap.add_argument("--out", default="out/bench_control_fem")
     args = ap.parse_args(argv)
@@ -42,7 +43,7 @@ def main(argv=None) -> int:
                                                                                                      "--plants"))),
         noises=[args.noise], out=Path(args.out), episodes=1, hold_steps=args.hold, max_steps=args.max_steps,
         data=Path(args.data), mpc_model=args.mpc_model, phi_prior="coins", mpc_approach_m=1e-3 * args.approach_mm,
-        mpc_standoff=args.standoff, mpc_max_rate_V=args.max_rate, progress=False)
+        mpc_standoff=args.standoff, mpc_max_rate_V=args.max_rate, mpc_creep_V=args.creep, progress=False)
     rows = [e.row for e in control.run(config)]
     table = []
     for r in rows:

@@ -135,7 +135,7 @@ def cmd_dagger(args) -> int:
         out=Path(args.out), episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, hold_steps=args.hold,
         target_m=1e-3 * args.target_mm, data=Path(args.data), phi_prior=args.phi_prior,
         mpc_approach_m=1e-3 * args.mpc_approach_mm, mpc_standoff=args.mpc_standoff,
-        mpc_max_rate_V=args.mpc_max_rate, scene=args.scene,
+        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, scene=args.scene,
         overrides=args.overrides, progress=False)
     config = dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
                                  val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
@@ -161,8 +161,10 @@ def register_dagger(sub) -> None:
     p.add_argument("--mpc-model", default=None, help="f_a of round 0 (default: trained here on the ramps)")
     p.add_argument("--mpc-max-rate", type=float, default=0.4,
                    help="the MPC's |dV| per step (V; default 0.4, as make control-fem; see deapull control --help)")
-    p.add_argument("--mpc-approach-mm", type=float, default=0.0,
-                   help="the MPC's approach limit (mm; default 0, see deapull control --help)")
+    p.add_argument("--mpc-approach-mm", type=float, default=0.1,
+                   help="the MPC's approach limit (mm; default 0.1, as make control-fem; see deapull control --help)")
+    p.add_argument("--mpc-creep", type=float, default=0.1,
+                   help="the MPC's smallest |dV| per step (V; default 0.1, as make control-fem)")
     p.add_argument("--phi-prior", default="coins", help="the MPC's inference prior: none or coins (default)")
     p.add_argument("--mpc-standoff", type=float, default=0.0, help="the MPC's stand-off (stds; default 0)")
     p.add_argument("--max-steps", type=int, default=3000, help="steps before an episode counts as failed (3000)")
