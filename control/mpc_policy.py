@@ -34,6 +34,12 @@ what settles it, and the MPC's own small corrections on a noisy estimate are wha
 move it out. Past the target the plan may bring V down (the release pulls the
 coin back toward the clamp).
 
+**Memory.** With an f_a whose step needs the DEA's state beyond its voltage (``f-memory``:
+the tip's contact point P and friction T, :attr:`CoinDynamics.memory_units`) the plan's
+state is ξ = (x, u, V, P, T). The plant shows neither: the policy tracks them as it tracks u,
+by its own model step from the previous estimate under the applied voltage, starting from
+the DEA at rest at the first voltage.
+
 **Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
 moves the setpoint (push, push, pull back) re-plans at once.
 """
@@ -64,9 +70,9 @@ def make_dynamics(model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float, e
     available)."""
     if engine == "native" or (engine == "auto" and native.available(model)):
         if not native.available(model):
-            raise InputError(f"the native MPC needs an f-coulomb f_a and a C compiler (f_a is {model.kind!r}; "
-                             f"compiler {'found' if native.library() is not None else 'missing'})")
-        return native.NativeCoinDynamics(model, phi, dt, dv_max_V, v_max_V)
+            raise InputError(f"the native MPC needs an f-coulomb or f-memory f_a and a C compiler (f_a is "
+                             f"{model.kind!r}; compiler {'found' if native.library() is not None else 'missing'})")
+        return native.native_dynamics(model, phi, dt, dv_max_V, v_max_V)
     return CoinDynamics(model, phi, dt, dv_max_V, v_max_V)
 
 
@@ -243,6 +249,7 @@ class MPCPolicy(Policy):
         self.holding = False
         self.side, self.waited = math.copysign(1.0, 0.0 - self.target_m), 0   # the coin starts at x = 0
         self.previous = None          # (x, u, V) estimate of the previous step
+        self.memory = None            # f_a's memory entries (scaled) after that step; None: at rest
         self.solve_ms, self.inference_ms = [], []
 
     def inferred(self) -> dict:
@@ -311,7 +318,7 @@ class MPCPolicy(Policy):
 
     def _cost(self, model_target_m: float):
         cfg = self.config
-        return coin_cost(model_target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight)
+        return coin_cost(model_target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight, self.dynamics.n - 3)
 
     @property
     def estimate_std_m(self) -> float:
@@ -326,15 +333,21 @@ class MPCPolicy(Policy):
     def _estimate(self, x: float, V: float) -> tuple[float, float]:
         """(x, u) to plan from, given the observed x and the applied V (module docstring)."""
         if self.previous is None:
+            self.memory = None
             if self.bias is not None:
                 return self.bias.reset(x), 0.0
             return (x if self.kalman is None else self.kalman.reset(x)), 0.0
         x0, u0, V0 = self.previous
-        if not self.noisy and self.bias is None:
+        memory = self.dynamics.n > 3
+        if not self.noisy and self.bias is None and not memory:
             return x, (x - x0) / self.dt
         with torch.no_grad():
-            pred = self.dynamics(self.dynamics.state(x0, u0, V0),
+            pred = self.dynamics(self.dynamics.state(x0, u0, V0, self.memory),
                                  torch.tensor([[(V - V0) / self.dv_max_V]], dtype=torch.float64))[0]
+        if memory:                          # the tip's state after the applied step, by f_a
+            self.memory = pred[3:].clone()
+            if not self.noisy and self.bias is None:
+                return x, (x - x0) / self.dt
         x_pred, u_pred = float(pred[0]) * X_UNIT_M, float(pred[1]) * U_UNIT_M_S
         if self.bias is not None:
             x_obs = x
@@ -365,7 +378,7 @@ class MPCPolicy(Policy):
         start = time.perf_counter()
         x, u = self._estimate(x, V)
         self.previous = (x, u, V)
-        xi0 = self.dynamics.state(x, u, V)
+        xi0 = self.dynamics.state(x, u, V, self.memory)
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
         # hold (hysteresis): start once the estimate is inside the band, and go on while it stays
