@@ -4,7 +4,7 @@ tip's memory, and the compiled step, Jacobians and iLQR (``native_mpc_memory.c``
 (:class:`~deapull.control.dynamics.CoinDynamics` on ``TipMemoryModel.plan_step_memory``,
 implicit gradients by autograd) to round-off.
 
-Broken twice to watch them fail (then restored). (1) The sign of ∂T'/∂P flipped in the C
+Broken three times to watch them fail (then restored). (1) The sign of ∂T'/∂P flipped in the C
 Jacobian (``dT_P = +dr_P / sl`` in native_mpc_memory.c): the Jacobian test failed ("Mismatched
 elements: 980 / 8000 (12.2%), Greatest absolute difference: 60.7 at index (256, 4, 3)") and both
 solver tests ("Mismatched elements: 10 / 18, Greatest absolute difference: 4.65e-05 at index
@@ -181,3 +181,29 @@ def test_the_policy_tracks_the_tips_memory_and_reaches_the_target(trained, engin
     torch.testing.assert_close(tracked, memory, rtol=1e-5, atol=1e-11)
     assert env.reached_step is not None and abs(info["error_m"]) < 1e-5, (info["error_m"], info["V_V"])
     assert actions[0] == pytest.approx(DV_MAX) and min(actions[-10:]) < DV_MAX          # ramp, then the MPC
+
+
+def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained):
+    """``unstall``: after a pull-back (push to −0.30 mm, back to −0.25 mm, on to −0.30 mm) on a
+    memoryless plant, the f-memory MPC's solved plans hold V with the coin standing (its
+    model's tip must reload its friction first, late in the horizon); the policy creeps
+    instead and the coin is back on the third target within a few steps. Without the rule it
+    waited 64 steps for the second target (measured). Broken once (the creep replaced by
+    ``dV = 0.0`` in MPCPolicy.act): it failed with "{False: [59, 64, 7], True: [59, 64, 7]},
+    assert 64 < 20"."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.surrogate.phi import Phi
+    from deapull.workflows.control import run_episode
+    phi = Phi(*TRUTH_PHI)
+    plant = SurrogatePlant(trained("f-coulomb").model, phi)
+    setpoints = (-0.3e-3, -0.25e-3, -0.3e-3)
+    steps = {}
+    for unstall in (False, True):
+        env = CoinPushEnv(plant, target_m=setpoints[0], terminate_on_success=False, max_steps=4000)
+        policy = MPCPolicy(trained("f-memory").model, MPCConfig(infer=False, unstall=unstall), phi=phi)
+        row = run_episode(env, policy, seed=0, step_limit=1200, hold_steps=50, setpoints_m=setpoints).row
+        assert row["setpoints_reached"] == 3 and row["setpoints_settled"] == 3, row
+        steps[unstall] = [int(s) for s in row["iterations_per_setpoint"].split(";")]
+    assert steps[True][1] < 20 < 40 < steps[False][1], steps
