@@ -104,8 +104,8 @@ class MPCConfig:
     inference : InferenceConfig
     engine : {"auto", "native", "torch"}
         Where f_a's steps, Jacobians and the iLQR run: ``native`` the compiled solver of
-        :mod:`deapull.control.native` (f-coulomb only; the same plans to round-off, ~1,000×
-        faster), ``torch`` :func:`mpc.solve` on :class:`CoinDynamics`, ``auto`` native
+        :mod:`deapull.control.native` (f-coulomb and f-memory; the same plans to round-off,
+        ~400–1,000× faster), ``torch`` :func:`mpc.solve` on :class:`CoinDynamics`, ``auto`` native
         where it is available.
     filter : {"none", "kf"}
         ``kf``: plan from the estimate of a Kalman filter on the position whose prediction

@@ -16,6 +16,13 @@ runs the same arithmetic in C:
   torch model's final Newton correction gives);
 * :func:`deapull.control.mpc.solve` for n = 3, m = 1, operation for operation.
 
+``native_mpc_memory.c`` does the same for the tip-memory model f-memory, whose planning
+state carries the tip's contact point and friction (ξ = (x, u, V, P, T), n = 5): its
+four-output material network as pieces, the bracketed Newton solve of
+:func:`~deapull.surrogate.models.memory.tip_memory_step` in T', its implicit-function
+Jacobians, and the same iLQR for n = 5 (:class:`NativeMemoryDynamics`,
+``tests/control/test_native_memory.py``).
+
 :class:`NativeCoinDynamics` is a drop-in :class:`~deapull.control.dynamics.CoinDynamics`
 (``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
 returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
@@ -114,7 +121,7 @@ class NativeCoinDynamics(CoinDynamics):
     def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
         if not self.model.can("compiled_mpc") or library() is None:
-            raise RuntimeError("the native MPC runs f-coulomb models where a C compiler is available")
+            raise RuntimeError("the native coin MPC runs f-coulomb models where a C compiler is available")
         pieces = self.model.material_pieces(0.0, self.v_max_V)
         self._knots = np.ascontiguousarray(pieces["knots"], dtype=np.float64)
         self._slope = np.ascontiguousarray(pieces["slope"], dtype=np.float64)

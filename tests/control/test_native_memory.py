@@ -207,3 +207,30 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
         assert row["setpoints_reached"] == 3 and row["setpoints_settled"] == 3, row
         steps[unstall] = [int(s) for s in row["iterations_per_setpoint"].split(";")]
     assert steps[True][1] < 20 < 40 < steps[False][1], steps
+
+
+def test_the_cli_plans_with_an_f_memory_model_and_refuses_to_infer_with_it(trained, sweep_dir, fs1_dir, tmp_path,
+                                                                          capsys):
+    """``deapull control --mpc-model <f-memory>``: f-memory cannot infer φ, so the default (online
+    inference) exits 2 with one line naming the options that plan with a given φ, before any
+    output; with ``--mpc-no-infer --phi-prior coins`` the compiled f-memory MPC runs the episode.
+    Broken once (the check in workflows.control.check removed): the refusal came only from
+    inside the first episode, without naming the options ("assert (1 == 1 and '--mpc-no-infer'
+    in \"deapull control: error: online inference needs a model that can infer φ ...\")")."""
+    import csv
+
+    from deapull.surrogate import store
+    from deapull.workflows.cli import main
+    result = trained("f-memory")
+    folder = store.save(result.model, tmp_path / "fmem", result.summary(), result.history)
+    argv = ["control", "--policy", "mpc", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--plant-model",
+            str(fs1_dir), "--mpc-model", str(folder), "--out", str(tmp_path / "out"), "--no-progress",
+            "--episodes", "1", "--noise", "0", "--target-mm", "-0.2", "--max-steps", "300", "--hold", "20"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--mpc-no-infer" in err and "'f-memory'" in err, err
+    assert not (tmp_path / "out").exists()
+    assert main(argv + ["--mpc-no-infer", "--phi-prior", "coins"]) == 0
+    with open(tmp_path / "out" / "control.csv", newline="") as f:
+        (row,) = list(csv.DictReader(f))
+    assert row["reached"] == "True" and row["inferred_mass_kg"] == "", row
