@@ -10,7 +10,7 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem control-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem control-fem control-fem-memory fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -97,6 +97,16 @@ control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e
 	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
 		--out $(OUT)/control_fem
 	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem/multi
+
+# the same two tasks with the tip-memory f_a (docs/control.md, "An f_a with the tip's memory"): it cannot
+# infer φ, so both plan with the coin prior's median (--mpc-no-infer)
+control-fem-memory: setup ## control-fem's single targets (fem:C3, fem:C5) and push-push-pull-back with an f-memory f_a (~10 min)
+	@test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+		--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
+	$(DEAPULL) control $(FEM_CONTROL:$(MODELS)/fa=$(MODELS)/fa_mem) --mpc-no-infer \
+		--plant fem:C3,fem:C5 --out $(OUT)/control_fem_memory
+	$(DEAPULL) control $(FEM_CONTROL:$(MODELS)/fa=$(MODELS)/fa_mem) --mpc-no-infer \
+		--plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem_memory/multi
 
 experiments: setup ## the paper's six sliding sets for every model, best of 5 seeds on each validation setup (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments

@@ -10,6 +10,11 @@ voltage); control ν = ΔV / ΔV_max ∈ [−1, 1] (the env's per-step limit). O
 V' = clip(V + ν ΔV_max, 0, V_max) (the env's own clipping, so V ∈ [0, V_max] holds in the
 plan as in the env), then (x', u') = f_a((x, u), (V', Δt); V, φ) with the current φ.
 
+**Memory.** A kind whose step needs more than the voltage before it (``f-memory``: the tip's
+contact point P and friction T of the previous step, :attr:`Surrogate.plan_memory`) has
+them appended to ξ in their own units (P / 1 mm, T / 0.01 N), carried through the rollout
+and differentiated like the rest: ξ = (x, u, V, P, T). The cost ignores them.
+
 **Costs** (:func:`coin_cost`), ℓ_t on (ξ_t, ν_t) and ℓ_T on ξ_T:
 
 * ``scaled`` (default): ½[(x − x^T)²/mm² + w ν²] with w = ``dv_weight`` (1e-3: a full
@@ -57,23 +62,42 @@ class CoinDynamics:
         self.model = copy.deepcopy(model).double().eval().requires_grad_(False)
         self.phi = phi
         self.dt, self.dv_max_V, self.v_max_V = float(dt), float(dv_max_V), float(v_max_V)
+        #: units of the memory entries appended to ξ (empty: ξ = (x, u, V))
+        self.memory_units = torch.tensor([unit for _, unit in model.plan_memory], dtype=torch.float64)
+        self.n = 3 + len(self.memory_units)
 
     def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
         x, u, V = xi[:, 0] * X_UNIT_M, xi[:, 1] * U_UNIT_M_S, xi[:, 2] * V_UNIT_V
         V_next = torch.clamp(V + nu[:, 0] * self.dv_max_V, 0.0, self.v_max_V)
         s = torch.stack([x, u], -1)
         a = torch.stack([V_next, torch.full_like(V_next, self.dt)], -1)
-        s_next, _ = self.model.plan_step(s, a, V, self.phi)
-        return torch.stack([s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S, V_next / V_UNIT_V], -1)
+        head = [None, None, V_next / V_UNIT_V]
+        if self.n == 3:
+            s_next, _ = self.model.plan_step(s, a, V, self.phi)
+            tail = []
+        else:
+            s_next, _, memory = self.model.plan_step_memory(s, a, V, xi[:, 3:] * self.memory_units, self.phi)
+            tail = list((memory / self.memory_units).unbind(-1))
+        head[:2] = s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S
+        return torch.stack(head + tail, -1)
 
-    def state(self, x_m: float, u_m_s: float, V_V: float) -> torch.Tensor:
-        """ξ (1, 3) of a coin at x (m) with velocity u (m/s) under V (V)."""
-        return torch.tensor([[x_m / X_UNIT_M, u_m_s / U_UNIT_M_S, V_V / V_UNIT_V]], dtype=torch.float64)
+    def state(self, x_m: float, u_m_s: float, V_V: float, memory=None) -> torch.Tensor:
+        """ξ (1, n) of a coin at x (m) with velocity u (m/s) under V (V); with memory entries
+        (:attr:`memory_units`), ``memory`` holds them in scaled units (a ξ[3:] of an earlier
+        step), or None: the DEA at rest at V."""
+        xi = torch.tensor([[x_m / X_UNIT_M, u_m_s / U_UNIT_M_S, V_V / V_UNIT_V]], dtype=torch.float64)
+        if self.n == 3:
+            return xi
+        if memory is None:
+            with torch.no_grad():
+                memory = self.model.plan_start(torch.tensor([V_V], dtype=torch.float64)) / self.memory_units
+        return torch.cat([xi, torch.as_tensor(memory, dtype=torch.float64).reshape(1, -1)], -1)
 
 
-def coin_cost(target_m: float, kind: str = "scaled", dv_weight: float = 1e-3, terminal_weight: float = 1.0
-              ) -> mpc.QuadCost:
-    """The MPC's cost on (ξ, ν) (module docstring); constant terms dropped."""
+def coin_cost(target_m: float, kind: str = "scaled", dv_weight: float = 1e-3, terminal_weight: float = 1.0,
+              memory: int = 0) -> mpc.QuadCost:
+    """The MPC's cost on (ξ, ν) (module docstring); constant terms dropped. ``memory``: the
+    number of memory entries appended to ξ (no cost on them)."""
     if kind not in COSTS:
         raise InputError(f"MPC cost {kind!r}: choose one of {', '.join(COSTS)}")
     xt = target_m / X_UNIT_M
@@ -82,6 +106,8 @@ def coin_cost(target_m: float, kind: str = "scaled", dv_weight: float = 1e-3, te
     else:
         # ½[(x − x^T)² + 1e-3 V²] (SI) × 1e6, in ξ: x = 1e-3 ξ_0, V = 100 ξ_2
         w_x, w_V, w_dv = 1.0, PAPER_ACTION_WEIGHT * V_UNIT_V ** 2 / X_UNIT_M ** 2, 0.0
-    C = torch.diag(torch.tensor([w_x, 0.0, w_V, w_dv], dtype=torch.float64))
-    c = torch.tensor([-w_x * xt, 0.0, 0.0, 0.0], dtype=torch.float64)
-    return mpc.QuadCost(C, c, terminal_weight * C[:3, :3].clone(), terminal_weight * c[:3].clone())
+    pad = [0.0] * memory
+    C = torch.diag(torch.tensor([w_x, 0.0, w_V, *pad, w_dv], dtype=torch.float64))
+    c = torch.tensor([-w_x * xt, 0.0, 0.0, *pad, 0.0], dtype=torch.float64)
+    n = 3 + memory
+    return mpc.QuadCost(C, c, terminal_weight * C[:n, :n].clone(), terminal_weight * c[:n].clone())

@@ -34,6 +34,21 @@ what settles it, and the MPC's own small corrections on a noisy estimate are wha
 move it out. Past the target the plan may bring V down (the release pulls the
 coin back toward the clamp).
 
+**Memory.** With an f_a whose step needs the DEA's state beyond its voltage (``f-memory``:
+the tip's contact point P and friction T, :attr:`CoinDynamics.memory_units`) the plan's
+state is ξ = (x, u, V, P, T). The plant shows neither: the policy tracks them as it tracks u,
+by its own model step from the previous estimate under the applied voltage, starting from
+the DEA at rest at the first voltage.
+
+**Stalls** (``unstall``). When the coin stands outside the tolerance and the solved plan
+leaves V unchanged for its first step with the coin standing after it, the policy creeps
+(``creep_V``) toward the target instead: such a plan sees the motion that more voltage
+would bring only late in the horizon, not worth its ΔV penalty, and would be chosen again
+at every step (the coin never restarts). With an f-memory f_a this happens after every stop
+or reversal, where the tip must reload its friction by ~2 μ_b N c of stroke before the coin
+moves (measured on surrogate:C1 at 0.4 V per step: 3 of 10 episodes stood still for
+3,000 steps).
+
 **Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
 moves the setpoint (push, push, pull back) re-plans at once.
 """
@@ -64,9 +79,9 @@ def make_dynamics(model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float, e
     available)."""
     if engine == "native" or (engine == "auto" and native.available(model)):
         if not native.available(model):
-            raise InputError(f"the native MPC needs an f-coulomb f_a and a C compiler (f_a is {model.kind!r}; "
-                             f"compiler {'found' if native.library() is not None else 'missing'})")
-        return native.NativeCoinDynamics(model, phi, dt, dv_max_V, v_max_V)
+            raise InputError(f"the native MPC needs an f-coulomb or f-memory f_a and a C compiler (f_a is "
+                             f"{model.kind!r}; compiler {'found' if native.library() is not None else 'missing'})")
+        return native.native_dynamics(model, phi, dt, dv_max_V, v_max_V)
     return CoinDynamics(model, phi, dt, dv_max_V, v_max_V)
 
 
@@ -89,8 +104,8 @@ class MPCConfig:
     inference : InferenceConfig
     engine : {"auto", "native", "torch"}
         Where f_a's steps, Jacobians and the iLQR run: ``native`` the compiled solver of
-        :mod:`deapull.control.native` (f-coulomb only; the same plans to round-off, ~1,000×
-        faster), ``torch`` :func:`mpc.solve` on :class:`CoinDynamics`, ``auto`` native
+        :mod:`deapull.control.native` (f-coulomb and f-memory; the same plans to round-off,
+        ~400–1,000× faster), ``torch`` :func:`mpc.solve` on :class:`CoinDynamics`, ``auto`` native
         where it is available.
     filter : {"none", "kf"}
         ``kf``: plan from the estimate of a Kalman filter on the position whose prediction
@@ -129,6 +144,9 @@ class MPCConfig:
         With a prior on φ (``inference.prior``), a field is planned with its estimate only
         once its Cramér–Rao bound on the relative error is below this (0.1: the paper's 10 %
         inference error); otherwise with the prior's median (:meth:`MPCPolicy._planning_phi`).
+    unstall : bool
+        Creep toward the target when the solved plan holds V with the coin standing outside
+        the tolerance (module docstring, "Stalls").
     standoff_stds, standoff_std, max_wait :
         Stand-off under noise (0: off): while the position estimate's std exceeds
         ``standoff_std`` × tolerance, aim ``standoff_stds`` stds short of the target and hold
@@ -159,6 +177,7 @@ class MPCConfig:
     standoff_stds: float = 0.0
     standoff_std: float = 0.3
     max_wait: int = 1500
+    unstall: bool = True
 
     def __post_init__(self):
         if self.filter not in FILTERS:
@@ -243,6 +262,7 @@ class MPCPolicy(Policy):
         self.holding = False
         self.side, self.waited = math.copysign(1.0, 0.0 - self.target_m), 0   # the coin starts at x = 0
         self.previous = None          # (x, u, V) estimate of the previous step
+        self.memory = None            # f_a's memory entries (scaled) after that step; None: at rest
         self.solve_ms, self.inference_ms = [], []
 
     def inferred(self) -> dict:
@@ -311,7 +331,7 @@ class MPCPolicy(Policy):
 
     def _cost(self, model_target_m: float):
         cfg = self.config
-        return coin_cost(model_target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight)
+        return coin_cost(model_target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight, self.dynamics.n - 3)
 
     @property
     def estimate_std_m(self) -> float:
@@ -326,15 +346,21 @@ class MPCPolicy(Policy):
     def _estimate(self, x: float, V: float) -> tuple[float, float]:
         """(x, u) to plan from, given the observed x and the applied V (module docstring)."""
         if self.previous is None:
+            self.memory = None
             if self.bias is not None:
                 return self.bias.reset(x), 0.0
             return (x if self.kalman is None else self.kalman.reset(x)), 0.0
         x0, u0, V0 = self.previous
-        if not self.noisy and self.bias is None:
+        memory = self.dynamics.n > 3
+        if not self.noisy and self.bias is None and not memory:
             return x, (x - x0) / self.dt
         with torch.no_grad():
-            pred = self.dynamics(self.dynamics.state(x0, u0, V0),
+            pred = self.dynamics(self.dynamics.state(x0, u0, V0, self.memory),
                                  torch.tensor([[(V - V0) / self.dv_max_V]], dtype=torch.float64))[0]
+        if memory:                          # the tip's state after the applied step, by f_a
+            self.memory = pred[3:].clone()
+            if not self.noisy and self.bias is None:
+                return x, (x - x0) / self.dt
         x_pred, u_pred = float(pred[0]) * X_UNIT_M, float(pred[1]) * U_UNIT_M_S
         if self.bias is not None:
             x_obs = x
@@ -365,7 +391,7 @@ class MPCPolicy(Policy):
         start = time.perf_counter()
         x, u = self._estimate(x, V)
         self.previous = (x, u, V)
-        xi0 = self.dynamics.state(x, u, V)
+        xi0 = self.dynamics.state(x, u, V, self.memory)
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
         # hold (hysteresis): start once the estimate is inside the band, and go on while it stays
@@ -391,7 +417,7 @@ class MPCPolicy(Policy):
         # tolerance inside the horizon it is applied without solving (module docstring)
         fastest = ramp if x > model_target else -ramp
         roll = self.dynamics.rollout if self.native else functools.partial(mpc.rollout, self.dynamics)
-        out_of_reach = False
+        out_of_reach = stalled = False
         if abs(x - model_target) > tolerance:
             reach = roll(xi0, fastest)[0, :, 0] * X_UNIT_M
             out_of_reach = bool((reach - model_target).abs().min() > tolerance and
@@ -403,7 +429,14 @@ class MPCPolicy(Policy):
             solver = self.dynamics.solve if self.native else functools.partial(mpc.solve, self.dynamics)
             sol = solver(self.cost, xi0.repeat(3, 1), torch.cat([warm, ramp, -ramp]), -1.0, 1.0,
                          iterations=cfg.iterations)
-            self.plan = sol.u[int(sol.cost.argmin())].unsqueeze(0)
+            best = int(sol.cost.argmin())
+            self.plan = sol.u[best].unsqueeze(0)
+            # a plan that leaves V where it is and the coin standing, short of the target or
+            # past it: the motion more voltage would bring comes too late in the horizon to pay
+            # for its ΔV (f-memory: the tip must first reload its friction), and the next plan
+            # would say the same (module docstring, "Stalls")
+            stalled = (cfg.unstall and abs(x - model_target) > tolerance and float(self.plan[0, 0, 0]) == 0.0
+                       and float(sol.x[best, 1, 1]) == 0.0)
         self.solve_ms.append(1e3 * (time.perf_counter() - start))
         dV = float(self.plan[0, 0, 0]) * self.dv_max_V
         creep = min(cfg.creep_V, self.dv_max_V)
@@ -412,6 +445,8 @@ class MPCPolicy(Policy):
             # speed, which f_a (quasi-static tip) does not model
             limit = max(creep, self.dv_max_V * abs(x - self.target_m) / cfg.approach_m)
             dV = max(-limit, min(limit, dV))
+        if stalled:
+            dV = creep if x > model_target else -creep
         if cfg.hold_band > 0 and 0 < abs(dV) < creep:
             # outside the hold region a step too small to drag the coin (its slip rate under
             # the friction's regularisation, docs/control.md) would only stall: creep instead

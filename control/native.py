@@ -16,6 +16,13 @@ runs the same arithmetic in C:
   torch model's final Newton correction gives);
 * :func:`deapull.control.mpc.solve` for n = 3, m = 1, operation for operation.
 
+``native_mpc_memory.c`` does the same for the tip-memory model f-memory, whose planning
+state carries the tip's contact point and friction (ξ = (x, u, V, P, T), n = 5): its
+four-output material network as pieces, the bracketed Newton solve of
+:func:`~deapull.surrogate.models.memory.tip_memory_step` in T', its implicit-function
+Jacobians, and the same iLQR for n = 5 (:class:`NativeMemoryDynamics`,
+``tests/control/test_native_memory.py``).
+
 :class:`NativeCoinDynamics` is a drop-in :class:`~deapull.control.dynamics.CoinDynamics`
 (``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
 returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
@@ -62,9 +69,38 @@ def library() -> ctypes.CDLL | None:
     return lib
 
 
+MEMORY_SOURCE = Path(__file__).with_name("native_mpc_memory.c")
+
+
+@functools.lru_cache(maxsize=1)
+def memory_library() -> ctypes.CDLL | None:
+    """The compiled solver of the tip-memory f_a (``native_mpc_memory.c``), or None."""
+    lib = surrogate_native.compiled(MEMORY_SOURCE, "native_mpc_memory", "the MPC uses the slower torch path")
+    if lib is None:
+        return None
+    common = [_D, ctypes.c_int, _D, _D, _D]
+    lib.deapull_memory_step.argtypes = common + [ctypes.c_int, _D, _D, _D, _D, _D]
+    lib.deapull_memory_rollout.argtypes = common + [ctypes.c_int, ctypes.c_int, _D, _D, _D]
+    lib.deapull_memory_ilqr.argtypes = (
+        common + [_D, _D, _D, _D, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                  ctypes.c_int, _D, ctypes.c_double, _D, _D, _D, _D, _D, _D, _D, _D])
+    for f in (lib.deapull_memory_step, lib.deapull_memory_rollout, lib.deapull_memory_ilqr):
+        f.restype = ctypes.c_int
+    return lib
+
+
 def available(model=None) -> bool:
-    """True when the library compiles and ``model`` (if given) is one it runs (f-coulomb)."""
+    """True when the library compiles and ``model`` (if given) is one it runs (f-coulomb, or
+    f-memory: :class:`NativeMemoryDynamics`)."""
+    if model is not None and model.can("compiled_mpc_memory"):
+        return memory_library() is not None
     return (model is None or model.can("compiled_mpc")) and library() is not None
+
+
+def native_dynamics(model, phi, dt: float, dv_max_V: float, v_max_V: float) -> "NativeCoinDynamics":
+    """The compiled twin of ``CoinDynamics(model, ...)`` for the kind of ``model``."""
+    cls = NativeMemoryDynamics if model.can("compiled_mpc_memory") else NativeCoinDynamics
+    return cls(model, phi, dt, dv_max_V, v_max_V)
 
 
 def _p(a: np.ndarray):
@@ -85,7 +121,7 @@ class NativeCoinDynamics(CoinDynamics):
     def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
         if not self.model.can("compiled_mpc") or library() is None:
-            raise RuntimeError("the native MPC runs f-coulomb models where a C compiler is available")
+            raise RuntimeError("the native coin MPC runs f-coulomb models where a C compiler is available")
         pieces = self.model.material_pieces(0.0, self.v_max_V)
         self._knots = np.ascontiguousarray(pieces["knots"], dtype=np.float64)
         self._slope = np.ascontiguousarray(pieces["slope"], dtype=np.float64)
@@ -161,6 +197,107 @@ class NativeCoinDynamics(CoinDynamics):
         mu = np.full(B, float(mu0))
         history = np.zeros((B, iterations + 1))
         done = self._lib.deapull_coin_ilqr(
+            *self._head(), _p(C), _p(c), _p(Cf), _p(cf), int(cost.C_final is not None), int(cost.c_final is not None),
+            B, T, iterations, len(steps), _p(steps), float(tol), _p(x0), _p(u), _p(lo), _p(hi), _p(xs), _p(J),
+            _p(mu), _p(history))
+        if done < 0:
+            raise MemoryError("the native MPC could not allocate its scratch memory")
+        return mpc.Solution(x=torch.from_numpy(xs), u=torch.from_numpy(u).unsqueeze(-1), cost=torch.from_numpy(J),
+                            history=torch.from_numpy(history[:, :done + 1]), mu=torch.from_numpy(mu),
+                            iterations=done)
+
+
+class NativeMemoryDynamics(CoinDynamics):
+    """:class:`CoinDynamics` of an f-memory f_a (ξ = (x, u, V, P, T)) evaluated in C
+    (``native_mpc_memory.c``): the same interface as :class:`NativeCoinDynamics`, n = 5."""
+
+    n_state = 5
+
+    def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
+        super().__init__(model, phi, dt, dv_max_V, v_max_V)
+        if not self.model.can("compiled_mpc_memory") or memory_library() is None or self.n != self.n_state:
+            raise RuntimeError("the native memory MPC runs f-memory models where a C compiler is available")
+        from deapull.surrogate.models.memory import COMPLIANCE_SCALE
+        pieces = self.model.material_pieces(0.0, self.v_max_V)
+        self._knots = np.ascontiguousarray(pieces["knots"], dtype=np.float64)
+        self._slope = np.ascontiguousarray(pieces["slope"], dtype=np.float64)
+        self._intercept = np.ascontiguousarray(pieces["intercept"], dtype=np.float64)
+        if self._slope.shape[1] != 4:
+            raise RuntimeError(f"f-memory's material network has 4 outputs, got {self._slope.shape[1]}")
+        t0 = (0.0 - pieces["mean"]) / pieces["scale"]
+        k0 = int(np.clip(np.searchsorted(self._knots, t0, side="right") - 1, 0, len(self._slope) - 1))
+        rest = self._slope[k0, 0] * t0 + self._intercept[k0, 0]
+        self._static = [pieces["mean"], pieces["scale"], pieces["stroke_scale"], pieces["fy_mean"],
+                        pieces["fy_scale"], COMPLIANCE_SCALE, rest]
+        self._lib = memory_library()
+
+    def _params(self) -> np.ndarray:
+        m, phi = self.model, self.phi
+        mean, scale, sx, fym, fys, c0, rest = self._static
+        pu, tu = (float(v) for v in self.memory_units)
+        return np.array([mean, scale, sx, fym, fys, c0, phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"),
+                         m.gravity_m_s2, m.slip_rate_reg_m_s, self.dt, self.dv_max_V, self.v_max_V, m.iterations,
+                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, pu, tu, rest], dtype=np.float64)
+
+    def _head(self):
+        return (_p(self._params_now), len(self._slope), _p(self._knots), _p(self._slope), _p(self._intercept))
+
+    def _call(self, xi, nu, jac: bool):
+        n = self.n_state
+        self._params_now = self._params()
+        x = _np(xi).reshape(-1, n)
+        v = _np(nu).reshape(-1)
+        N = len(x)
+        out = np.empty((N, n))
+        A = np.empty((N, n, n)) if jac else None
+        Bv = np.empty((N, n)) if jac else None
+        self._lib.deapull_memory_step(*self._head(), N, _p(x), _p(v), _p(out), _p(A) if jac else None,
+                                      _p(Bv) if jac else None)
+        return out, A, Bv
+
+    def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(self._call(xi, nu, False)[0])
+
+    def jacobian(self, xi: torch.Tensor, nu: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """A = ∂ξ'/∂ξ (N, 5, 5) and B = ∂ξ'/∂ν (N, 5, 1)."""
+        _, A, Bv = self._call(xi, nu, True)
+        return torch.from_numpy(A), torch.from_numpy(Bv).unsqueeze(-1)
+
+    def rollout(self, xi0: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
+        """:func:`mpc.rollout` in one C call: ξ (B, T+1, 5) from ξ0 (B, 5) under ν (B, T, 1)."""
+        n = self.n_state
+        self._params_now = self._params()
+        x0 = _np(xi0).reshape(-1, n)
+        u = _np(nu).reshape(len(x0), -1)
+        B, T = u.shape
+        xs = np.empty((B, T + 1, n))
+        self._lib.deapull_memory_rollout(*self._head(), B, T, _p(x0), _p(u), _p(xs))
+        return torch.from_numpy(xs)
+
+    def solve(self, cost: mpc.QuadCost, x0: torch.Tensor, u_init: torch.Tensor, lower=None, upper=None, *,
+              iterations: int = 20, alphas=mpc.ALPHAS, tol: float = 0.0, mu0: float = 0.0) -> mpc.Solution:
+        """:func:`mpc.solve` (same arguments, m = 1, a constant :class:`~mpc.QuadCost` on (ξ, ν)) in C."""
+        n = self.n_state
+        if not isinstance(cost, mpc.QuadCost) or cost.C.shape != (n + 1, n + 1) or cost.c.shape != (n + 1,):
+            raise TypeError(f"the native solver takes a time-invariant QuadCost with C ({n + 1}, {n + 1}) and "
+                            f"c ({n + 1},)")
+        self._params_now = self._params()
+        x0 = _np(x0).reshape(-1, n)
+        B = len(x0)
+        u = _np(u_init).reshape(B, -1).copy()
+        T = u.shape[1]
+        like = torch.zeros(B, T, 1, dtype=torch.float64)
+        lo = _np(mpc._bounds(lower, like, -1.0)).reshape(B, T)
+        hi = _np(mpc._bounds(upper, like, 1.0)).reshape(B, T)
+        C, c = _np(cost.C), _np(cost.c)
+        Cf = _np(cost.C_final) if cost.C_final is not None else np.zeros((n, n))
+        cf = _np(cost.c_final) if cost.c_final is not None else np.zeros(n)
+        steps = np.ascontiguousarray(alphas, dtype=np.float64)
+        xs = np.empty((B, T + 1, n))
+        J = np.empty(B)
+        mu = np.full(B, float(mu0))
+        history = np.zeros((B, iterations + 1))
+        done = self._lib.deapull_memory_ilqr(
             *self._head(), _p(C), _p(c), _p(Cf), _p(cf), int(cost.C_final is not None), int(cost.c_final is not None),
             B, T, iterations, len(steps), _p(steps), float(tol), _p(x0), _p(u), _p(lo), _p(hi), _p(xs), _p(J),
             _p(mu), _p(history))

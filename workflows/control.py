@@ -219,6 +219,22 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> None:
             raise InputError(f"--phi-prior {config.phi_prior!r}: choose one of {', '.join(PHI_PRIORS)}")
         if mpc_model_trained:
             _require_model(Path(config.mpc_model), "--mpc-model")
+            if not (config.mpc_oracle or config.mpc_no_infer):
+                _require_inference(Path(config.mpc_model))
+
+
+def _require_inference(folder: Path) -> None:
+    """The MPC infers φ online with its own f_a: refuse a kind that cannot (f-memory) before any
+    model is loaded, naming the options that plan with a given φ instead."""
+    import json
+
+    from deapull.surrogate.models import registry
+    kind = json.loads((folder / "model.json").read_text()).get("kind")
+    cls = registry.KINDS.get(kind)
+    if cls is not None and "infer" not in cls.capabilities:
+        raise InputError(f"--mpc-model {str(folder)!r}: its kind {kind!r} cannot infer φ online (capability "
+                         f"'infer'); plan with a given φ: --mpc-no-infer --phi-prior coins (the prior's median) "
+                         f"or --mpc-oracle (the plant's true φ)")
 
 
 def check_fem(config: ControlConfig) -> None:

@@ -131,8 +131,9 @@ def mlp_params(net: nn.Sequential) -> tuple[int, np.ndarray, np.ndarray]:
 #: what a model kind may offer the control stage: ``plan`` (:meth:`Surrogate.plan_step`),
 #: ``infer`` (φ from buffered transitions: :meth:`Surrogate.inference_columns`, ``predict_columns``,
 #: ``stick_shortfall``) and ``compiled_mpc`` (control/native.py runs its step, Jacobians and iLQR in C:
-#: the tip-contact law with a piecewise-affine material network)
-CAPABILITIES = ("plan", "infer", "compiled_mpc")
+#: the tip-contact law with a piecewise-affine material network) and ``compiled_mpc_memory`` (the same
+#: for the tip-memory law, its planning state carrying :attr:`Surrogate.plan_memory`)
+CAPABILITIES = ("plan", "infer", "compiled_mpc", "compiled_mpc_memory")
 
 
 class Surrogate(nn.Module):
@@ -167,6 +168,21 @@ class Surrogate(nn.Module):
         """``plan``: one step (s', z) for a planner, from the state, the action and the voltage
         ``v_prev`` before the step (a kind without memory of it ignores it)."""
         raise NotImplementedError(f"model kind {self.kind!r} cannot plan (capabilities: {sorted(self.capabilities)})")
+
+    #: ``plan`` with memory: the entries a planner must carry beside (x, u, V), as (name, unit)
+    #: pairs (the unit scales the entry in the planner's state); empty for a kind whose memory
+    #: is the voltage before the step alone (:meth:`plan_step`)
+    plan_memory: tuple = ()
+
+    def plan_start(self, V: torch.Tensor) -> torch.Tensor:
+        """``plan`` with memory: the memory entries (..., len(plan_memory)) of the DEA at rest at
+        the voltages ``V``, in SI units."""
+        raise NotImplementedError(f"model kind {self.kind!r} has no planning memory")
+
+    def plan_step_memory(self, s, a, v_prev, memory, phi: Phi):
+        """``plan`` with memory: one step (s', z, memory') from the state, the action, the voltage
+        before the step and the memory entries of :attr:`plan_memory` (SI units)."""
+        raise NotImplementedError(f"model kind {self.kind!r} has no planning memory")
 
     def inference_columns(self, x_prev, x, V, V_next, dt) -> dict:
         """``infer``: what x̂_{t+1}(φ) of buffered transitions needs that does not depend on φ: a dict

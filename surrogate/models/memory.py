@@ -270,6 +270,26 @@ class TipMemoryModel(TipFriction, Surrogate):
         s_next, z, memory = self.dynamics(s, a, memory, phi)
         return s_next.to(s.dtype), z.to(s.dtype), memory.to(s.dtype)
 
+    #: the planner's state carries the tip's state beside (x, u, V): the contact point P (m)
+    #: and the friction T (N) of the previous step (V is the planner's own voltage)
+    capabilities = frozenset({"plan", "compiled_mpc_memory"})
+    plan_memory = (("P", 1e-3), ("T", 1e-2))
+
+    def plan_start(self, V: torch.Tensor) -> torch.Tensor:
+        """(P, T) of the DEA at rest at ``V`` without friction: P = X(V), T = 0 (as :meth:`step`'s
+        first call)."""
+        return self._start(V)[..., 1:]
+
+    def plan_step(self, s, a, v_prev, phi: Phi):
+        raise NotImplementedError("f-memory plans with its memory: plan_step_memory (plan_memory)")
+
+    def plan_step_memory(self, s, a, v_prev, memory, phi: Phi):
+        """One step (s', z, (P', T')) from (x, u), (V', Δt), V and (P, T); differentiable in all
+        of them (implicit gradients of the step's root, :func:`tip_memory_step`)."""
+        full = torch.cat([v_prev.unsqueeze(-1), memory], dim=-1)
+        s_next, z, full_next = self.dynamics(s, a, full, phi)
+        return s_next, z, full_next[..., 1:]
+
     def training_loss(self, batch: Transitions) -> torch.Tensor:
         """Eq. 3 with the memory from the data; the pressing force is compared as the FEM's
         relation Fy = Fy₀(V) + b(V) Fx at the recorded Fx (an equation error: through the

@@ -142,6 +142,53 @@ class TipFriction:
         return {"hidden": config.hidden, "layers": config.layers, "gravity_m_s2": train_sets[0].gravity_m_s2,
                 "slip_rate_reg_m_s": eps.pop()}
 
+    def material_pieces(self, v_lo: float, v_hi: float) -> dict:
+        """m as the exact piecewise-affine function it is on [v_lo, v_hi] V (a fast path).
+
+        m is a ReLU network of one input t = (V − mean)/scale (either tip kind), so each of its outputs is
+        continuous and affine between the points where a hidden unit changes sign. Layer by
+        layer, the units' pre-activations are affine on every interval between the kinks
+        found so far (their slopes come from the activation pattern at the interval's
+        midpoint), so their zeros inside an interval are the next kinks. On each final
+        piece the output is o(t) = slope t + intercept, from o and its slope at the piece's
+        midpoint, in float64: the same function as :meth:`material_response` up to round-off.
+
+        Returns
+        -------
+        dict
+            ``knots`` (K+1,) in t, increasing, spanning [v_lo, v_hi]; ``slope``,
+            ``intercept`` (K, outputs) of the raw outputs on each piece (f-coulomb: 2, f-memory: 4); ``mean``, ``scale``
+            of t; ``stroke_scale`` (X = stroke_scale (o_0(t) − o_0(t(0 V)))), ``fy_mean``,
+            ``fy_scale`` (Fy = fy_mean + fy_scale o_1(t)). :func:`material_from_pieces`
+            evaluates them.
+        """
+        linears = [layer for layer in self.material if isinstance(layer, torch.nn.Linear)]
+        Ws = [layer.weight.detach().double().cpu().numpy() for layer in linears]
+        bs = [layer.bias.detach().double().cpu().numpy() for layer in linears]
+        mean, scale = float(self.in_mean[2]), float(self.in_std[2])
+        knots = np.array([(min(v_lo, 0.0) - mean) / scale, (v_hi - mean) / scale])
+
+        def affine(t, depth):
+            """Pre-activation of layer ``depth`` and its slope in t at the points t (K,)."""
+            h, dh = t[:, None], np.ones((len(t), 1))
+            for j in range(depth):
+                z, dz = h @ Ws[j].T + bs[j], dh @ Ws[j].T
+                h, dh = np.where(z > 0, z, 0.0), np.where(z > 0, dz, 0.0)
+            return h @ Ws[depth].T + bs[depth], dh @ Ws[depth].T
+
+        for depth in range(1, len(Ws)):
+            mid = 0.5 * (knots[:-1] + knots[1:])
+            z, dz = affine(mid, depth - 1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                zero = mid[:, None] - z / dz
+            inside = (dz != 0) & (zero > knots[:-1, None]) & (zero < knots[1:, None])
+            knots = np.unique(np.concatenate([knots, zero[inside]]))
+        mid = 0.5 * (knots[:-1] + knots[1:])
+        out, slope = affine(mid, len(Ws) - 1)
+        return {"knots": knots, "slope": slope, "intercept": out - slope * mid[:, None], "mean": mean,
+                "scale": scale, "stroke_scale": float(self.s_std[0]), "fy_mean": float(self.z_mean[1]),
+                "fy_scale": float(self.z_std[1])}
+
 
 @register
 class TipContactModel(TipFriction, Surrogate):
@@ -187,53 +234,6 @@ class TipContactModel(TipFriction, Surrogate):
         out = self.material((scaled - self.in_mean[2]) / self.in_std[2])
         stroke = self.s_std[0] * (out[..., 0, 0] - out[..., 1, 0])
         return stroke, self.z_mean[1] + self.z_std[1] * out[..., 0, 1]
-
-    def material_pieces(self, v_lo: float, v_hi: float) -> dict:
-        """m as the exact piecewise-affine function it is on [v_lo, v_hi] V (a fast path).
-
-        m is a ReLU network of one input t = (V − mean)/scale, so each of its outputs is
-        continuous and affine between the points where a hidden unit changes sign. Layer by
-        layer, the units' pre-activations are affine on every interval between the kinks
-        found so far (their slopes come from the activation pattern at the interval's
-        midpoint), so their zeros inside an interval are the next kinks. On each final
-        piece the output is o(t) = slope t + intercept, from o and its slope at the piece's
-        midpoint, in float64: the same function as :meth:`material_response` up to round-off.
-
-        Returns
-        -------
-        dict
-            ``knots`` (K+1,) in t, increasing, spanning [v_lo, v_hi]; ``slope``,
-            ``intercept`` (K, 2) of the two raw outputs on each piece; ``mean``, ``scale``
-            of t; ``stroke_scale`` (X = stroke_scale (o_0(t) − o_0(t(0 V)))), ``fy_mean``,
-            ``fy_scale`` (Fy = fy_mean + fy_scale o_1(t)). :func:`material_from_pieces`
-            evaluates them.
-        """
-        linears = [layer for layer in self.material if isinstance(layer, torch.nn.Linear)]
-        Ws = [layer.weight.detach().double().cpu().numpy() for layer in linears]
-        bs = [layer.bias.detach().double().cpu().numpy() for layer in linears]
-        mean, scale = float(self.in_mean[2]), float(self.in_std[2])
-        knots = np.array([(min(v_lo, 0.0) - mean) / scale, (v_hi - mean) / scale])
-
-        def affine(t, depth):
-            """Pre-activation of layer ``depth`` and its slope in t at the points t (K,)."""
-            h, dh = t[:, None], np.ones((len(t), 1))
-            for j in range(depth):
-                z, dz = h @ Ws[j].T + bs[j], dh @ Ws[j].T
-                h, dh = np.where(z > 0, z, 0.0), np.where(z > 0, dz, 0.0)
-            return h @ Ws[depth].T + bs[depth], dh @ Ws[depth].T
-
-        for depth in range(1, len(Ws)):
-            mid = 0.5 * (knots[:-1] + knots[1:])
-            z, dz = affine(mid, depth - 1)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                zero = mid[:, None] - z / dz
-            inside = (dz != 0) & (zero > knots[:-1, None]) & (zero < knots[1:, None])
-            knots = np.unique(np.concatenate([knots, zero[inside]]))
-        mid = 0.5 * (knots[:-1] + knots[1:])
-        out, slope = affine(mid, len(Ws) - 1)
-        return {"knots": knots, "slope": slope, "intercept": out - slope * mid[:, None], "mean": mean,
-                "scale": scale, "stroke_scale": float(self.s_std[0]), "fy_mean": float(self.z_mean[1]),
-                "fy_scale": float(self.z_std[1])}
 
     def init_memory(self, s0, a0):
         """(V, X) before the first step: the DEA at rest, 0 V."""

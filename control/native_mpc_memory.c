@@ -1,0 +1,432 @@
+/* The coin task's MPC in C on the tip-memory model f-memory (deapull.control.native,
+ * NativeMemoryDynamics): f_a's step with its analytic Jacobians and the batched box-iLQR of
+ * deapull.control.mpc.solve for n = 5, m = 1.
+ *
+ * The state is CoinDynamics' ξ = (x/x_unit, u/u_unit, V/V_unit, P/P_unit, T/T_unit): the coin,
+ * the voltage now applied and the tip's memory (contact point P and friction T of the previous
+ * step; control/dynamics.py). One step: V' = clip(V + ν ΔV_max, 0, V_max), m at V' (the
+ * material network as the exact piecewise-affine function it is, TipFriction.material_pieces,
+ * with its four outputs: X = sx (o0 − o0(0 V)), Fy0 = fym + fys o1, c = c0 softplus(o2 + 1),
+ * b = tanh(o3 / 5)), then tip_memory_step (surrogate/models/memory.py): the root T' of
+ *
+ *   r(T) = T − μ_t max(Fy, 0) reg(s),  Fy = Fy0 + b T,  N = max(m_c g + Fy, 0),
+ *   reach = T + (m_c/Δt) u,  u' = (reach − sgn(reach) μ_b N)/(m_c/Δt) if |reach| > μ_b N else 0,
+ *   P' = X − c T,  s = (P' − P)/Δt − u'
+ *
+ * by the same bracketed Newton iteration from the previous T (stopping per row), one more
+ * Newton correction, and the Jacobians of (u', P', T') from the implicit-function theorem at
+ * the root (dT'/dθ = −∂r/∂θ / r'(T)): what autograd through the torch model's final correction
+ * gives. The previous T only starts the solve: its derivative is 0, as in torch.
+ *
+ * Layout of the parameter block `p` (doubles), filled by control/native.py:
+ *   0 mean, 1 scale of t = (V − mean)/scale, 2 sx, 3 fym, 4 fys, 5 c0 (compliance scale),
+ *   6 m_c, 7 μ_b, 8 μ_t, 9 g, 10 ε_v, 11 Δt, 12 ΔV_max, 13 V_max, 14 iterations,
+ *   15 x unit, 16 u unit, 17 V unit, 18 P unit, 19 T unit, 20 raw output o0 at 0 V
+ * and the pieces: knots (K+1), slope (K, 4), intercept (K, 4).
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define NX 5
+#define NO 4
+
+typedef struct {
+    int K;
+    const double *knots, *slope, *intercept;
+    double mean, scale, sx, fym, fys, c0, mass, mu_b, mu_t, grav, eps, dt, dvmax, vmax, xu, uu, vu, pu, tu, rest;
+    int iterations;
+} Model;
+
+static Model model_of(const double *p, int K, const double *knots, const double *slope, const double *intercept)
+{
+    Model M;
+    M.K = K; M.knots = knots; M.slope = slope; M.intercept = intercept;
+    M.mean = p[0]; M.scale = p[1]; M.sx = p[2]; M.fym = p[3]; M.fys = p[4]; M.c0 = p[5];
+    M.mass = p[6]; M.mu_b = p[7]; M.mu_t = p[8]; M.grav = p[9]; M.eps = p[10];
+    M.dt = p[11]; M.dvmax = p[12]; M.vmax = p[13]; M.iterations = (int)p[14];
+    M.xu = p[15]; M.uu = p[16]; M.vu = p[17]; M.pu = p[18]; M.tu = p[19]; M.rest = p[20];
+    return M;
+}
+
+/* torch.nn.functional.softplus (β = 1, threshold 20) */
+static double softplus(double v) { return v > 20.0 ? v : log1p(exp(v)); }
+static double sigmoid(double v) { return v > 20.0 ? 1.0 : 1.0 / (1.0 + exp(-v)); }
+
+/* m at V: X, Fy0, c, b and their derivatives in V */
+typedef struct { double X, dX, fy0, dfy0, c, dc, b, db; } Material;
+
+static Material material(const Model *M, double V)
+{
+    double t = (V - M->mean) / M->scale;
+    int lo = 0, hi = M->K - 1;
+    while (lo < hi) {
+        int mid = (lo + hi + 1) >> 1;
+        if (M->knots[mid] <= t) lo = mid; else hi = mid - 1;
+    }
+    const double *s = M->slope + NO * lo, *a = M->intercept + NO * lo;
+    double o0 = s[0] * t + a[0], o1 = s[1] * t + a[1], o2 = s[2] * t + a[2], o3 = s[3] * t + a[3];
+    Material m;
+    m.X = M->sx * (o0 - M->rest);
+    m.dX = M->sx * s[0] / M->scale;
+    m.fy0 = M->fym + M->fys * o1;
+    m.dfy0 = M->fys * s[1] / M->scale;
+    m.c = M->c0 * softplus(o2 + 1.0);
+    m.dc = M->c0 * (o2 + 1.0 > 20.0 ? 1.0 : sigmoid(o2 + 1.0)) * s[2] / M->scale;
+    m.b = tanh(0.2 * o3);
+    m.db = (1.0 - m.b * m.b) * 0.2 * s[3] / M->scale;
+    return m;
+}
+
+static inline double reg(double v, double eps) { return v / sqrt(v * v + eps * eps); }
+
+/* tip_memory_step's parts at T */
+typedef struct { double fy, u_next, P_next, s; int slip; double sgn, pn, pf; } Parts;
+
+static Parts parts(const Model *M, double T, double u, double P, const Material *m)
+{
+    const double ratio = M->mass / M->dt;
+    Parts q;
+    q.fy = m->fy0 + m->b * T;
+    double nraw = M->mass * M->grav + q.fy;
+    double normal = nraw > 0.0 ? nraw : 0.0;
+    double reach = T + ratio * u, cap = M->mu_b * normal;
+    q.slip = fabs(reach) > cap;
+    q.sgn = reach >= 0.0 ? 1.0 : -1.0;
+    q.u_next = q.slip ? (reach - q.sgn * cap) / ratio : 0.0;
+    q.P_next = m->X - m->c * T;
+    q.s = (q.P_next - P) / M->dt - q.u_next;
+    q.pn = nraw > 0.0 ? 1.0 : 0.0;
+    q.pf = q.fy > 0.0 ? 1.0 : 0.0;
+    return q;
+}
+
+static double residual(const Model *M, const Parts *q, double T)
+{
+    return T - M->mu_t * (q->fy > 0.0 ? q->fy : 0.0) * reg(q->s, M->eps);
+}
+
+/* r'(T) as memory.py's slope() */
+static double slope_of(const Model *M, const Parts *q, const Material *m)
+{
+    const double ratio = M->mass / M->dt, eps = M->eps;
+    double du = q->slip ? (1.0 - q->sgn * M->mu_b * m->b * q->pn) / ratio : 0.0;
+    double ds = -m->c / M->dt - du;
+    double qq = q->s * q->s + eps * eps;
+    double dreg = eps * eps / (qq * sqrt(qq));
+    return 1.0 - M->mu_t * (q->pf * m->b * reg(q->s, eps) + (q->fy > 0.0 ? q->fy : 0.0) * dreg * ds);
+}
+
+/* One step ξ' = f(ξ, ν) in scaled units; A (5×5, row-major) = ∂ξ'/∂ξ and Bv (5) = ∂ξ'/∂ν
+ * when A is not NULL. */
+static void step(const Model *M, const double *xi, double nu, double *out, double *A, double *Bv)
+{
+    const double dt = M->dt, eps = M->eps, ratio = M->mass / M->dt;
+    double x = xi[0] * M->xu, u = xi[1] * M->uu, V = xi[2] * M->vu, P = xi[3] * M->pu, Tprev = xi[4] * M->tu;
+    double Vr = V + nu * M->dvmax;
+    double Vn = fmin(fmax(Vr, 0.0), M->vmax);
+    double mask = (Vr >= 0.0 && Vr <= M->vmax) ? 1.0 : 0.0;
+    Material m = material(M, Vn);
+    /* the bracketed Newton solve of tip_memory_step */
+    double bound = (M->mu_t * fabs(m.fy0) / (1.0 - M->mu_t * fabs(m.b))) * (1 + 1e-9) + 1e-15;
+    double lo = -bound, hi = bound;
+    double T = fmin(fmax(Tprev, lo), hi);
+    double change = hi - lo;
+    for (int it = 0; it < M->iterations; it++) {
+        Parts q = parts(M, T, u, P, &m);
+        double r = residual(M, &q, T);
+        if (r < 0.0) lo = T; else hi = T;
+        double st = r / slope_of(M, &q, &m);
+        int bisect = (T - st < lo) || (T - st > hi) || (2.0 * fabs(st) > fabs(change)) || !isfinite(st);
+        double previous = T;
+        T = bisect ? 0.5 * (lo + hi) : T - st;
+        change = T - previous;
+        if (fabs(change) <= 1e-14 * (fabs(T) + 1e-9)) break;
+    }
+    Parts q0 = parts(M, T, u, P, &m);
+    double sl = slope_of(M, &q0, &m);
+    double T0 = T;
+    T = T0 - residual(M, &q0, T0) / sl;
+    Parts q = parts(M, T, u, P, &m);
+    double un = q.u_next;
+    out[0] = (x + dt * un) / M->xu;
+    out[1] = un / M->uu;
+    out[2] = Vn / M->vu;
+    out[3] = q.P_next / M->pu;
+    out[4] = T / M->tu;
+    if (!A) return;
+    /* ∂r/∂θ at T0 for θ = (u, P, X, c, fy0, b): r = T − μ_t fy⁺ reg(s) */
+    double fyp0 = q0.fy > 0.0 ? q0.fy : 0.0;
+    double qq = q0.s * q0.s + eps * eps, rho = reg(q0.s, eps), drho = eps * eps / (qq * sqrt(qq));
+    double slip0 = q0.slip ? 1.0 : 0.0;
+    /* u'(T0) partials (T fixed) */
+    double du0_u = slip0, du0_fy0 = -slip0 * q0.sgn * M->mu_b * q0.pn / ratio;
+    double du0_b = du0_fy0 * T0;
+    /* s partials */
+    double ds_u = -du0_u, ds_P = -1.0 / dt, ds_X = 1.0 / dt, ds_c = -T0 / dt, ds_fy0 = -du0_fy0, ds_b = -du0_b;
+    double k = M->mu_t * fyp0 * drho;
+    double dr_u = -k * ds_u, dr_P = -k * ds_P, dr_X = -k * ds_X, dr_c = -k * ds_c;
+    double dr_fy0 = -M->mu_t * q0.pf * rho - k * ds_fy0;
+    double dr_b = -M->mu_t * q0.pf * T0 * rho - k * ds_b;
+    double dT_u = -dr_u / sl, dT_P = -dr_P / sl, dT_X = -dr_X / sl, dT_c = -dr_c / sl;
+    double dT_fy0 = -dr_fy0 / sl, dT_b = -dr_b / sl;
+    /* the outputs at T: u' and P' */
+    double slip = q.slip ? 1.0 : 0.0;
+    double du_T = slip * (1.0 - q.sgn * M->mu_b * m.b * q.pn) / ratio;
+    double du_fy0p = -slip * q.sgn * M->mu_b * q.pn / ratio, du_bp = du_fy0p * T;
+    double dun_u = du_T * dT_u + slip, dun_P = du_T * dT_P, dun_X = du_T * dT_X, dun_c = du_T * dT_c;
+    double dun_fy0 = du_T * dT_fy0 + du_fy0p, dun_b = du_T * dT_b + du_bp;
+    double dPn_u = -m.c * dT_u, dPn_P = -m.c * dT_P, dPn_X = 1.0 - m.c * dT_X, dPn_c = -T - m.c * dT_c;
+    double dPn_fy0 = -m.c * dT_fy0, dPn_b = -m.c * dT_b;
+    /* through V' */
+    double dun_Vn = dun_X * m.dX + dun_c * m.dc + dun_fy0 * m.dfy0 + dun_b * m.db;
+    double dPn_Vn = dPn_X * m.dX + dPn_c * m.dc + dPn_fy0 * m.dfy0 + dPn_b * m.db;
+    double dT_Vn = dT_X * m.dX + dT_c * m.dc + dT_fy0 * m.dfy0 + dT_b * m.db;
+    double dVn_V = mask * M->vu, dVn_nu = mask * M->dvmax;   /* dV'/dξ2, dV'/dν */
+    double rows[3][3] = {   /* (u', P', T') by (ξ1 u, ξ3 P, V') in SI */
+        {dun_u * M->uu, dun_P * M->pu, dun_Vn},
+        {dPn_u * M->uu, dPn_P * M->pu, dPn_Vn},
+        {dT_u * M->uu, dT_P * M->pu, dT_Vn},
+    };
+    double unit[3] = {M->uu, M->pu, M->tu};
+    int idx[3] = {1, 3, 4};
+    memset(A, 0, sizeof(double) * NX * NX);
+    A[0] = 1.0;
+    A[2 * NX + 2] = mask;
+    for (int r = 0; r < 3; r++) {
+        double *row = A + NX * idx[r];
+        row[1] = rows[r][0] / unit[r];
+        row[3] = rows[r][1] / unit[r];
+        row[2] = rows[r][2] * dVn_V / unit[r];
+        Bv[idx[r]] = rows[r][2] * dVn_nu / unit[r];
+    }
+    /* x' = x + Δt u' */
+    A[1] = dt * rows[0][0] / M->xu;
+    A[3] = dt * rows[0][1] / M->xu;
+    A[2] = dt * rows[0][2] * dVn_V / M->xu;
+    Bv[0] = dt * rows[0][2] * dVn_nu / M->xu;
+    Bv[2] = dVn_nu / M->vu;
+}
+
+/* N independent steps: xi (N, 5), nu (N) -> out (N, 5), A (N, 5, 5), Bv (N, 5) (A may be NULL) */
+int deapull_memory_step(const double *p, int K, const double *knots, const double *slope, const double *intercept,
+                        int N, const double *xi, const double *nu, double *out, double *A, double *Bv)
+{
+    Model M = model_of(p, K, knots, slope, intercept);
+    for (int i = 0; i < N; i++)
+        step(&M, xi + NX * i, nu[i], out + NX * i, A ? A + NX * NX * i : NULL, A ? Bv + NX * i : NULL);
+    return 0;
+}
+
+/* rollouts: x0 (B, 5), u (B, T) -> xs (B, T+1, 5) */
+int deapull_memory_rollout(const double *p, int K, const double *knots, const double *slope,
+                           const double *intercept, int B, int T, const double *x0, const double *u, double *xs)
+{
+    Model M = model_of(p, K, knots, slope, intercept);
+    for (int b = 0; b < B; b++) {
+        double *x = xs + (size_t)b * (T + 1) * NX;
+        memcpy(x, x0 + NX * b, NX * sizeof(double));
+        for (int t = 0; t < T; t++) step(&M, x + NX * t, u[b * T + t], x + NX * (t + 1), NULL, NULL);
+    }
+    return 0;
+}
+
+/* ---- the solver: mpc.solve for n = 5, m = 1 ---- */
+
+#define NT (NX + 1)
+
+typedef struct {
+    const double *C, *c, *Cf, *cf;   /* 6×6, 6, 5×5 or NULL, 5 or NULL */
+} Cost;
+
+static double stage_cost(const Cost *Q, const double *x, double u)
+{
+    double tau[NT];
+    for (int i = 0; i < NX; i++) tau[i] = x[i];
+    tau[NX] = u;
+    double quad = 0.0, lin = 0.0;
+    for (int i = 0; i < NT; i++) {
+        double row = 0.0;
+        for (int j = 0; j < NT; j++) row += Q->C[NT * i + j] * tau[j];
+        quad += tau[i] * row;
+        lin += Q->c[i] * tau[i];
+    }
+    return 0.5 * quad + lin;
+}
+
+static double final_cost(const Cost *Q, const double *x)
+{
+    double value = 0.0;
+    if (Q->Cf) {
+        double quad = 0.0;
+        for (int i = 0; i < NX; i++) {
+            double row = 0.0;
+            for (int j = 0; j < NX; j++) row += Q->Cf[NX * i + j] * x[j];
+            quad += x[i] * row;
+        }
+        value += 0.5 * quad;
+    }
+    if (Q->cf)
+        for (int i = 0; i < NX; i++) value += Q->cf[i] * x[i];
+    return value;
+}
+
+/* roll out from x (T+1, 5)[0] under u (T), keeping Jacobians; returns the cost (inf if not finite) */
+static double roll(const Model *M, const Cost *Q, int T, double *x, const double *u, double *A, double *Bv)
+{
+    double J = 0.0;
+    for (int t = 0; t < T; t++) {
+        step(M, x + NX * t, u[t], x + NX * (t + 1), A + NX * NX * t, Bv + NX * t);
+        J += stage_cost(Q, x + NX * t, u[t]);
+    }
+    J += final_cost(Q, x + NX * T);
+    return isfinite(J) ? J : INFINITY;
+}
+
+/* the backward pass of mpc.backward_pass for m = 1; returns ok */
+static int backward(const Cost *Q, int T, const double *x, const double *u, const double *A, const double *Bv,
+                    const double *lo, const double *hi, double mu, double *k, double *K)
+{
+    double Vx[NX] = {0}, Vxx[NX * NX] = {0};
+    if (Q->Cf) memcpy(Vxx, Q->Cf, NX * NX * sizeof(double));
+    for (int i = 0; i < NX; i++) {
+        for (int j = 0; j < NX; j++) Vx[i] += Vxx[NX * i + j] * x[NX * T + j];
+        if (Q->cf) Vx[i] += Q->cf[i];
+    }
+    int ok = 1;
+    for (int t = T - 1; t >= 0; t--) {
+        const double *At = A + NX * NX * t, *Bt = Bv + NX * t, *xt = x + NX * t;
+        double tau[NT], grad[NT];
+        for (int i = 0; i < NX; i++) tau[i] = xt[i];
+        tau[NX] = u[t];
+        for (int i = 0; i < NT; i++) {
+            grad[i] = Q->c[i];
+            for (int j = 0; j < NT; j++) grad[i] += Q->C[NT * i + j] * tau[j];
+        }
+        double Qx[NX], Qu = grad[NX], BV[NX], AV[NX * NX], Qxx[NX * NX], Quu, Qux[NX], BtB = 0.0, BtA[NX];
+        for (int j = 0; j < NX; j++) {
+            Qx[j] = grad[j];
+            for (int i = 0; i < NX; i++) Qx[j] += At[NX * i + j] * Vx[i];
+            Qu += Bt[j] * Vx[j];
+            BtB += Bt[j] * Bt[j];
+        }
+        for (int j = 0; j < NX; j++) {
+            BV[j] = 0.0;
+            for (int i = 0; i < NX; i++) BV[j] += Bt[i] * Vxx[NX * i + j];
+        }
+        for (int i = 0; i < NX; i++)          /* AV = Aᵀ Vxx */
+            for (int j = 0; j < NX; j++) {
+                double s = 0.0;
+                for (int l = 0; l < NX; l++) s += At[NX * l + i] * Vxx[NX * l + j];
+                AV[NX * i + j] = s;
+            }
+        for (int i = 0; i < NX; i++)
+            for (int j = 0; j < NX; j++) {
+                double s = 0.0;
+                for (int l = 0; l < NX; l++) s += AV[NX * i + l] * At[NX * l + j];
+                Qxx[NX * i + j] = Q->C[NT * i + j] + s;
+            }
+        Quu = Q->C[NT * NX + NX];
+        for (int j = 0; j < NX; j++) Quu += BV[j] * Bt[j];
+        for (int j = 0; j < NX; j++) {
+            double s = 0.0, s2 = 0.0;
+            for (int l = 0; l < NX; l++) { s += BV[l] * At[NX * l + j]; s2 += Bt[l] * At[NX * l + j]; }
+            Qux[j] = Q->C[NT * NX + j] + s;
+            BtA[j] = s2;
+        }
+        double h = Quu + mu * BtB, Qux_r[NX];
+        for (int j = 0; j < NX; j++) Qux_r[j] = Qux[j] + mu * BtA[j];
+        int okt = h > 0.0;
+        ok = ok && okt;
+        double d = okt ? -Qu / h : 0.0, dlo = lo[t] - u[t], dhi = hi[t] - u[t];
+        double kt = fmin(fmax(d, dlo), dhi);
+        int free_ = d > dlo && d < dhi;
+        double *Kt = K + NX * t;
+        for (int j = 0; j < NX; j++) Kt[j] = (free_ && okt) ? -Qux_r[j] / h : 0.0;
+        k[t] = kt;
+        double a = Quu * kt + Qu;
+        for (int i = 0; i < NX; i++) Vx[i] = Qx[i] + Kt[i] * a + Qux[i] * kt;
+        for (int i = 0; i < NX; i++)
+            for (int j = 0; j < NX; j++)
+                Vxx[NX * i + j] = Qxx[NX * i + j] + Kt[i] * Quu * Kt[j] + Kt[i] * Qux[j] + Qux[i] * Kt[j];
+        for (int i = 0; i < NX; i++)
+            for (int j = i + 1; j < NX; j++) {
+                double s = 0.5 * (Vxx[NX * i + j] + Vxx[NX * j + i]);
+                Vxx[NX * i + j] = Vxx[NX * j + i] = s;
+            }
+    }
+    return ok;
+}
+
+/* mpc.solve for B rows: x0 (B, 5), u (B, T) in: the initial guess, out: the plan; lo, hi (B, T);
+ * xs (B, T+1, 5), cost (B), mu (B) in: μ0, out: final μ; history (B, iterations+1).
+ * Returns the iterations run, or −1 when out of memory. */
+int deapull_memory_ilqr(const double *p, int K, const double *knots, const double *slope, const double *intercept,
+                        const double *C, const double *c, const double *Cf, const double *cf, int has_Cf, int has_cf,
+                        int B, int T, int iterations, int S, const double *alphas, double tol,
+                        const double *x0, double *u, const double *lo, const double *hi,
+                        double *xs, double *cost, double *mu, double *history)
+{
+    Model M = model_of(p, K, knots, slope, intercept);
+    Cost Q = {C, c, has_Cf ? Cf : NULL, has_cf ? cf : NULL};
+    const size_t nA = (size_t)NX * NX + NX;                          /* A and Bv of one step */
+    size_t per = (size_t)T * nA + (size_t)(T + 1) * NX + T;         /* A, Bv, x, u of one trajectory */
+    double *work = malloc(sizeof(double) * ((size_t)B * per + (size_t)S * per + (size_t)(NX + 1) * T + 8));
+    if (!work) return -1;
+    double *nomA = work, *trial = work + (size_t)B * per, *k = trial + (size_t)S * per, *Kg = k + T;
+    for (int b = 0; b < B; b++) {
+        double *x = xs + (size_t)b * (T + 1) * NX, *ub = u + (size_t)b * T;
+        for (int t = 0; t < T; t++) ub[t] = fmin(fmax(ub[t], lo[b * T + t]), hi[b * T + t]);
+        memcpy(x, x0 + NX * b, NX * sizeof(double));
+        cost[b] = roll(&M, &Q, T, x, ub, nomA + (size_t)b * per, nomA + (size_t)b * per + NX * NX * T);
+        history[(size_t)b * (iterations + 1)] = cost[b];
+    }
+    int done = 0;
+    for (int it = 1; it <= iterations; it++) {
+        done = it;
+        int all_small = 1;
+        for (int b = 0; b < B; b++) {
+            double *x = xs + (size_t)b * (T + 1) * NX, *ub = u + (size_t)b * T;
+            double *A = nomA + (size_t)b * per, *Bv = A + NX * NX * T;
+            const double *lob = lo + (size_t)b * T, *hib = hi + (size_t)b * T;
+            int ok = backward(&Q, T, x, ub, A, Bv, lob, hib, mu[b], k, Kg);
+            double best = INFINITY;
+            int best_s = 0;
+            for (int s = 0; s < S; s++) {
+                double *tA = trial + (size_t)s * per, *tB = tA + NX * NX * T, *tx = tB + NX * T, *tu = tx + NX * (T + 1);
+                double J = 0.0;
+                memcpy(tx, x0 + NX * b, NX * sizeof(double));
+                for (int t = 0; t < T; t++) {
+                    const double *xb = x + NX * t, *xc = tx + NX * t, *Kt = Kg + NX * t;
+                    double fb = 0.0;
+                    for (int j = 0; j < NX; j++) fb += Kt[j] * (xc[j] - xb[j]);
+                    double ut = ub[t] + alphas[s] * k[t] + fb;
+                    ut = fmin(fmax(ut, lob[t]), hib[t]);
+                    tu[t] = ut;
+                    step(&M, xc, ut, tx + NX * (t + 1), tA + NX * NX * t, tB + NX * t);
+                    J += stage_cost(&Q, xc, ut);
+                }
+                J += final_cost(&Q, tx + NX * T);
+                if (!isfinite(J)) J = INFINITY;
+                if (J < best) { best = J; best_s = s; }
+            }
+            int better = ok && best < cost[b];
+            double gain = cost[b] - best;
+            if (better) {
+                double *tA = trial + (size_t)best_s * per, *tx = tA + nA * T, *tu = tx + NX * (T + 1);
+                memcpy(A, tA, nA * (size_t)T * sizeof(double));
+                memcpy(x, tx, NX * (size_t)(T + 1) * sizeof(double));
+                memcpy(ub, tu, (size_t)T * sizeof(double));
+                cost[b] = best;
+                mu[b] = mu[b] / 10.0 < 1e-6 ? 0.0 : mu[b] / 10.0;
+            } else {
+                mu[b] = fmin(fmax(mu[b] * 10.0, 1e-6), 1e10);
+            }
+            history[(size_t)b * (iterations + 1) + it] = cost[b];
+            if (better && !(gain <= tol * (1.0 + fabs(cost[b])))) all_small = 0;
+        }
+        if (tol > 0.0 && all_small) break;
+    }
+    free(work);
+    return done;
+}
