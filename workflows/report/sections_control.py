@@ -156,7 +156,7 @@ def section_control_fem(rep: Report) -> Section:
         anchors.append(f"control-fem-{i}")
     sec.table(Table(["plant", "setpoints (mm)", "iterations per setpoint", "setpoints settled", "settled",
                      "overshoot (mm)", "final abs error (mm)", "FEM ms / step", "episode wall (s)"], t_rows, anchors,
-                    caption="One episode per plant; setpoints −0.5;−1;−0.7: the multi-setpoint task (push, push, "
+                    caption="One episode per plant; the row with setpoints −0.5;−1;−0.7 is the multi-setpoint task (push, push, "
                             "pull back)"))
     settled = sum(r.get("settled") in ("True", "1") for r in rows)
     rep.claims.append(Claim("The MPC on the FEM plant (noise 0.1 mm)", "not run (control on the surrogates only)",
