@@ -156,8 +156,8 @@ def section_control_fem(rep: Report) -> Section:
         anchors.append(f"control-fem-{i}")
     sec.table(Table(["plant", "setpoints (mm)", "iterations per setpoint", "setpoints settled", "settled",
                      "overshoot (mm)", "final abs error (mm)", "FEM ms / step", "episode wall (s)"], t_rows, anchors,
-                    caption="One episode per plant; the row with setpoints −0.5;−1;−0.7 is the multi-setpoint task (push, push, "
-                            "pull back)"))
+                    caption="One episode per plant; the row with setpoints −0.5;−1;−0.7 is the multi-setpoint "
+                            "task (push, push, pull back)"))
     settled = sum(r.get("settled") in ("True", "1") for r in rows)
     rep.claims.append(Claim("The MPC on the FEM plant (noise 0.1 mm)", "not run (control on the surrogates only)",
                             f"settled in {settled}/{len(rows)} episodes", "#control-fem-0", outcome="beyond the paper"))
