@@ -57,16 +57,23 @@ def library() -> ctypes.CDLL | None:
     lib = surrogate_native.compiled(SOURCE, "native_mpc", "the MPC uses the slower torch path")
     if lib is None:
         return None
-    common = [_D, ctypes.c_int, _D, _D, _D]
-    lib.deapull_coin_step.argtypes = common + [ctypes.c_int, _D, _D, _D, _D, _D]
-    lib.deapull_coin_rollout.argtypes = common + [ctypes.c_int, ctypes.c_int, _D, _D, _D]
-    lib.deapull_coin_ilqr.argtypes = common + [_D, _D, _D, _D, ctypes.c_int, ctypes.c_int, ctypes.c_int,
-                                               ctypes.c_int, ctypes.c_int, ctypes.c_int, _D, ctypes.c_double,
-                                               _D, _D, _D, _D, _D, _D, _D, _D]
+    _declare(lib, "deapull_coin")
     lib.deapull_coin_predict.argtypes = [ctypes.c_int] + [_D] * 11
-    for f in (lib.deapull_coin_step, lib.deapull_coin_rollout, lib.deapull_coin_ilqr, lib.deapull_coin_predict):
-        f.restype = ctypes.c_int
+    lib.deapull_coin_predict.restype = ctypes.c_int
     return lib
+
+
+def _declare(lib: ctypes.CDLL, prefix: str) -> None:
+    """Argument and return types of ``<prefix>_step``, ``_rollout`` and ``_ilqr``, whose
+    signatures the f-coulomb and the f-memory solvers share (only the state's width differs)."""
+    common = [_D, ctypes.c_int, _D, _D, _D]
+    getattr(lib, f"{prefix}_step").argtypes = common + [ctypes.c_int, _D, _D, _D, _D, _D]
+    getattr(lib, f"{prefix}_rollout").argtypes = common + [ctypes.c_int, ctypes.c_int, _D, _D, _D]
+    getattr(lib, f"{prefix}_ilqr").argtypes = common + [_D, _D, _D, _D, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                                        ctypes.c_int, ctypes.c_int, ctypes.c_int, _D,
+                                                        ctypes.c_double, _D, _D, _D, _D, _D, _D, _D, _D]
+    for name in ("step", "rollout", "ilqr"):
+        getattr(lib, f"{prefix}_{name}").restype = ctypes.c_int
 
 
 MEMORY_SOURCE = Path(__file__).with_name("native_mpc_memory.c")
@@ -78,14 +85,7 @@ def memory_library() -> ctypes.CDLL | None:
     lib = surrogate_native.compiled(MEMORY_SOURCE, "native_mpc_memory", "the MPC uses the slower torch path")
     if lib is None:
         return None
-    common = [_D, ctypes.c_int, _D, _D, _D]
-    lib.deapull_memory_step.argtypes = common + [ctypes.c_int, _D, _D, _D, _D, _D]
-    lib.deapull_memory_rollout.argtypes = common + [ctypes.c_int, ctypes.c_int, _D, _D, _D]
-    lib.deapull_memory_ilqr.argtypes = (
-        common + [_D, _D, _D, _D, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
-                  ctypes.c_int, _D, ctypes.c_double, _D, _D, _D, _D, _D, _D, _D, _D])
-    for f in (lib.deapull_memory_step, lib.deapull_memory_rollout, lib.deapull_memory_ilqr):
-        f.restype = ctypes.c_int
+    _declare(lib, "deapull_memory")
     return lib
 
 
