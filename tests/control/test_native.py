@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from deapull.control import mpc, native
+from tests.control.jacobian_check import assert_jacobians_match_central_differences
 
 F64 = torch.float64
 TRUTH_PHI = (1.36e-3, 0.2, 0.5)
@@ -55,22 +56,7 @@ def test_native_jacobians_are_autograds_and_finite_differences(pair):
     assert float(A[:, 1, 2].abs().max()) > 1 and float(B[:, 1, 0].abs().max()) > 1e-2   # V and ν move the coin
     # central differences of the step (rows whose stick/slip state and clipping hold, away
     # from the material network's kinks: errors there are O(h), elsewhere round-off)
-    h = 1e-7
-    fd = torch.empty(len(xi), 3, 4, dtype=F64)
-    same = torch.ones(len(xi), dtype=torch.bool)
-    base = fast(xi, nu)
-    for j in range(4):
-        e = torch.zeros(len(xi), 4, dtype=F64)
-        e[:, j] = h
-        plus = fast(xi + e[:, :3], nu + e[:, 3:])
-        minus = fast(xi - e[:, :3], nu - e[:, 3:])
-        fd[:, :, j] = (plus - minus) / (2 * h)
-        same &= ((plus[:, 1] == 0) == (base[:, 1] == 0)) & ((minus[:, 1] == 0) == (base[:, 1] == 0))
-    same &= (xi[:, 2] + 0.05 * nu[:, 0] > 1e-6) & (xi[:, 2] + 0.05 * nu[:, 0] < 4 - 1e-6)
-    jac = torch.cat([A, B], -1)
-    err = (fd - jac).abs() / (1e-6 + jac.abs())
-    close = (err < 1e-4).all(-1).all(-1)
-    assert int(same.sum()) > 100 and float(close[same].double().mean()) > 0.95, float(err[same].max())
+    assert_jacobians_match_central_differences(fast, xi, nu, A, B, 0.05)
 
 
 @pytest.mark.parametrize("final", [False, True])

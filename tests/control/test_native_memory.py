@@ -22,6 +22,7 @@ import pytest
 import torch
 
 from deapull.control import mpc, native
+from tests.control.jacobian_check import assert_jacobians_match_central_differences
 
 F64 = torch.float64
 TRUTH_PHI = (1.36e-3, 0.2, 0.5)
@@ -101,21 +102,7 @@ def test_native_memory_jacobians_are_autograds(pair):
     torch.testing.assert_close(A, A_ref[0], rtol=1e-8, atol=1e-11 * scale)
     torch.testing.assert_close(B, B_ref[0], rtol=1e-8, atol=1e-11 * scale)
     assert float(A[:, 4, 3].abs().max()) > 1 and float(B[:, 0].abs().max()) > 1e-4   # P moves T, ν moves x
-    h = 1e-7
-    fd = torch.empty(len(xi), 5, 6, dtype=F64)
-    same = torch.ones(len(xi), dtype=torch.bool)
-    base = fast(xi, nu)
-    for j in range(6):
-        e = torch.zeros(len(xi), 6, dtype=F64)
-        e[:, j] = h
-        plus, minus = fast(xi + e[:, :5], nu + e[:, 5:]), fast(xi - e[:, :5], nu - e[:, 5:])
-        fd[:, :, j] = (plus - minus) / (2 * h)
-        same &= ((plus[:, 1] == 0) == (base[:, 1] == 0)) & ((minus[:, 1] == 0) == (base[:, 1] == 0))
-    same &= (xi[:, 2] + DV_MAX / 100 * nu[:, 0] > 1e-6) & (xi[:, 2] + DV_MAX / 100 * nu[:, 0] < 4 - 1e-6)
-    jac = torch.cat([A, B], -1)
-    err = (fd - jac).abs() / (1e-6 + jac.abs())
-    close = (err < 1e-4).all(-1).all(-1)
-    assert int(same.sum()) > 100 and float(close[same].double().mean()) > 0.95, float(err[same].max())
+    assert_jacobians_match_central_differences(fast, xi, nu, A, B, DV_MAX / 100)
 
 
 @pytest.mark.parametrize("final", [False, True])
