@@ -136,7 +136,7 @@ class DEAProblem:
             energy += self.gravity_scale * d.density_kg_m3 * sc.gravity_m_s2 * u[1] * self.dx
         dw = ufl.TestFunction(self.W)
         v = ufl.split(dw)[0] if self.has_parts else dw
-        self.contact, self._underside = None, None
+        self.contact, self._underside, self.penalty = None, None, None
         if self.obstacle is not None:
             lay = self.layout
             self.mu_t = dolfinx.fem.Constant(self.mesh, float(self.obstacle.mu_t))

@@ -278,7 +278,7 @@ class Stepper:
             self.p.gravity_scale.value = scale
             return self._coupled_solve(0.0 if V > 0 else V, dt)
 
-        penalty = getattr(self.p, "penalty", None)   # the coin's normal penalty (None: no obstacle)
+        penalty = self.p.penalty   # the coin's normal penalty, a Constant (None: no obstacle)
         k_target = float(penalty.value) if penalty is not None else 0.0
         k_place = min(k_target, PLACEMENT_PENALTY_N_M3)
         if penalty is not None:
