@@ -44,20 +44,25 @@ def _cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "deapull"
 
 
-def compiled(source: Path, stem: str, fallback: str) -> ctypes.CDLL | None:
+def compiled(source: Path, stem: str, fallback: str, headers: tuple[Path, ...] = ()) -> ctypes.CDLL | None:
     """``source`` compiled with :data:`FLAGS` into the cache (once per source, compiler and
     machine) and loaded, or None — with ``DEAPULL_NATIVE=0``, without a C compiler or when
     the compiler fails; ``fallback`` says in the log what is used instead. Shared by every
-    C kernel of the project (this module's rollouts, the MPC's ``control/native.py``)."""
+    C kernel of the project (this module's rollouts, the MPC's ``control/native.py``).
+
+    ``headers``: the files ``source`` includes from its own folder (``#include "..."`` finds
+    them there, so they need no include path); keyed with :data:`HEADERS`, so that an edit
+    to one compiles anew instead of loading a stale library."""
     if os.environ.get("DEAPULL_NATIVE", "1") == "0":
         log.info("%s disabled by DEAPULL_NATIVE=0; %s", source.name, fallback)
         return None
     compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if compiler is None or not source.is_file():
-        log.warning("no C compiler (or %s missing): %s", source.name, fallback)
+    missing = [f.name for f in (source, *HEADERS, *headers) if not f.is_file()]
+    if compiler is None or missing:
+        log.warning("no C compiler (or %s missing): %s", ", ".join(missing) or source.name, fallback)
         return None
-    key = hashlib.sha256("\0".join([source.read_text(), *(h.read_text() for h in HEADERS), compiler, *FLAGS,
-                                    platform.machine(), platform.node()]).encode()).hexdigest()[:16]
+    key = hashlib.sha256("\0".join([source.read_text(), *(h.read_text() for h in (*HEADERS, *headers)), compiler,
+                                    *FLAGS, platform.machine(), platform.node()]).encode()).hexdigest()[:16]
     target = _cache_dir() / f"{stem}_{key}.so"
     if not target.is_file():
         try:
