@@ -21,15 +21,17 @@ state carries the tip's contact point and friction (ξ = (x, u, V, P, T), n = 5)
 four-output material network as pieces, the bracketed Newton solve of
 :func:`~deapull.surrogate.models.memory.tip_memory_step` in T', its implicit-function
 Jacobians, and the same iLQR for n = 5 (:class:`NativeMemoryDynamics`,
-``tests/control/test_native_memory.py``).
+``tests/control/test_native_memory.py``). That iLQR (and the exported step and rollout around
+each file's step) is written once, in ``ilqr_passes.h``, which both files include with their
+own state width.
 
 :class:`NativeCoinDynamics` is a drop-in :class:`~deapull.control.dynamics.CoinDynamics`
 (``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
 returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
 Jacobians and plans to the torch path's (``tests/control/test_native.py``). Compiled on
-first use like the surrogate's native rollouts (same cache folder and flags); without a
-compiler, or with ``DEAPULL_NATIVE=0``, :func:`available` is False and the torch path is
-used.
+first use like the surrogate's native rollouts (same cache folder and flags, the cache keyed
+on ``ilqr_passes.h`` too); without a compiler, or with ``DEAPULL_NATIVE=0``,
+:func:`available` is False and the torch path is used.
 """
 from __future__ import annotations
 
@@ -48,13 +50,15 @@ from deapull.surrogate import native as surrogate_native
 log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("native_mpc.c")
+#: what both solvers include from this folder: the iLQR passes, shared
+HEADERS = (Path(__file__).with_name("ilqr_passes.h"),)
 _D = ctypes.POINTER(ctypes.c_double)
 
 
 @functools.lru_cache(maxsize=1)
 def library() -> ctypes.CDLL | None:
     """The compiled solver (compiled now if needed), or None where it cannot be had."""
-    lib = surrogate_native.compiled(SOURCE, "native_mpc", "the MPC uses the slower torch path")
+    lib = surrogate_native.compiled(SOURCE, "native_mpc", "the MPC uses the slower torch path", HEADERS)
     if lib is None:
         return None
     _declare(lib, "deapull_coin")
@@ -65,7 +69,8 @@ def library() -> ctypes.CDLL | None:
 
 def _declare(lib: ctypes.CDLL, prefix: str) -> None:
     """Argument and return types of ``<prefix>_step``, ``_rollout`` and ``_ilqr``, whose
-    signatures the f-coulomb and the f-memory solvers share (only the state's width differs)."""
+    signatures the f-coulomb and the f-memory solvers share (both are ``ilqr_passes.h``'s; only
+    the state's width differs)."""
     common = [_D, ctypes.c_int, _D, _D, _D]
     getattr(lib, f"{prefix}_step").argtypes = common + [ctypes.c_int, _D, _D, _D, _D, _D]
     getattr(lib, f"{prefix}_rollout").argtypes = common + [ctypes.c_int, ctypes.c_int, _D, _D, _D]
@@ -82,7 +87,8 @@ MEMORY_SOURCE = Path(__file__).with_name("native_mpc_memory.c")
 @functools.lru_cache(maxsize=1)
 def memory_library() -> ctypes.CDLL | None:
     """The compiled solver of the tip-memory f_a (``native_mpc_memory.c``), or None."""
-    lib = surrogate_native.compiled(MEMORY_SOURCE, "native_mpc_memory", "the MPC uses the slower torch path")
+    lib = surrogate_native.compiled(MEMORY_SOURCE, "native_mpc_memory", "the MPC uses the slower torch path",
+                                    HEADERS)
     if lib is None:
         return None
     _declare(lib, "deapull_memory")

@@ -7,9 +7,8 @@
  * backward-Euler step solved by the same bracketed Newton iteration as tip_coin_step (with
  * that function's stopping rule applied per row), and the Jacobians of the step from the
  * implicit-function theorem at the root, the same derivatives the torch model's
- * autograd gives. The solver repeats mpc.solve operation for operation (backward pass with
- * the closed-form box QP of m = 1, parallel line search over the same step sizes, the same
- * Levenberg–Marquardt schedule), one row after another; rows are independent there too.
+ * autograd gives. The solver is control/ilqr_passes.h, included below and shared with
+ * native_mpc_memory.c: mpc.solve operation for operation, over this state of width NX = 3.
  *
  * Layout of the parameter block `p` (doubles), filled by control/native.py:
  *   0 mean, 1 scale of t = (V − mean)/scale, 2 stroke_scale, 3 fy_mean, 4 fy_scale,
@@ -18,10 +17,10 @@
  * and the pieces: knots (K+1), slope (K, 2), intercept (K, 2).
  */
 #include <math.h>
-#include <stdlib.h>
-#include <string.h>
 
 #include "coin_step.h"   /* reg, coin_root: the coin's step (surrogate/coin_step.h) */
+
+#define NX 3   /* ξ = (x, u, V) */
 
 typedef struct {
     int K;
@@ -104,223 +103,10 @@ static void step(const Model *M, const double *xi, double nu, double *out, doubl
     Bv[2] = mask * M->dvmax / M->vu;
 }
 
-/* N independent steps: xi (N, 3), nu (N) -> out (N, 3), A (N, 3, 3), Bv (N, 3) (A may be NULL) */
-int deapull_coin_step(const double *p, int K, const double *knots, const double *slope, const double *intercept,
-                      int N, const double *xi, const double *nu, double *out, double *A, double *Bv)
-{
-    Model M = model_of(p, K, knots, slope, intercept);
-    for (int i = 0; i < N; i++)
-        step(&M, xi + 3 * i, nu[i], out + 3 * i, A ? A + 9 * i : NULL, A ? Bv + 3 * i : NULL);
-    return 0;
-}
-
-/* rollouts: x0 (B, 3), u (B, T) -> xs (B, T+1, 3) */
-int deapull_coin_rollout(const double *p, int K, const double *knots, const double *slope, const double *intercept,
-                         int B, int T, const double *x0, const double *u, double *xs)
-{
-    Model M = model_of(p, K, knots, slope, intercept);
-    for (int b = 0; b < B; b++) {
-        double *x = xs + (size_t)b * (T + 1) * 3;
-        memcpy(x, x0 + 3 * b, 3 * sizeof(double));
-        for (int t = 0; t < T; t++) step(&M, x + 3 * t, u[b * T + t], x + 3 * (t + 1), NULL, NULL);
-    }
-    return 0;
-}
-
-/* ---- the solver ---- */
-
-typedef struct {
-    const double *C, *c, *Cf, *cf;   /* 4×4, 4, 3×3 or NULL, 3 or NULL */
-} Cost;
-
-static double stage_cost(const Cost *Q, const double *x, double u)
-{
-    double tau[4] = {x[0], x[1], x[2], u};
-    double quad = 0.0, lin = 0.0;
-    for (int i = 0; i < 4; i++) {
-        double row = 0.0;
-        for (int j = 0; j < 4; j++) row += Q->C[4 * i + j] * tau[j];
-        quad += tau[i] * row;
-        lin += Q->c[i] * tau[i];
-    }
-    return 0.5 * quad + lin;
-}
-
-static double final_cost(const Cost *Q, const double *x)
-{
-    double value = 0.0;
-    if (Q->Cf) {
-        double quad = 0.0;
-        for (int i = 0; i < 3; i++) {
-            double row = 0.0;
-            for (int j = 0; j < 3; j++) row += Q->Cf[3 * i + j] * x[j];
-            quad += x[i] * row;
-        }
-        value += 0.5 * quad;
-    }
-    if (Q->cf)
-        for (int i = 0; i < 3; i++) value += Q->cf[i] * x[i];
-    return value;
-}
-
-/* roll out from x (T+1, 3)[0] under u (T), keeping Jacobians; returns the cost (inf if not finite) */
-static double roll(const Model *M, const Cost *Q, int T, double *x, const double *u, double *A, double *Bv)
-{
-    double J = 0.0;
-    for (int t = 0; t < T; t++) {
-        step(M, x + 3 * t, u[t], x + 3 * (t + 1), A + 9 * t, Bv + 3 * t);
-        J += stage_cost(Q, x + 3 * t, u[t]);
-    }
-    J += final_cost(Q, x + 3 * T);
-    return isfinite(J) ? J : INFINITY;
-}
-
-/* the backward pass of mpc.backward_pass for n = 3, m = 1; returns ok */
-static int backward(const Cost *Q, int T, const double *x, const double *u, const double *A, const double *Bv,
-                    const double *lo, const double *hi, double mu, double *k, double *K)
-{
-    double Vx[3] = {0, 0, 0}, Vxx[9] = {0};
-    if (Q->Cf) memcpy(Vxx, Q->Cf, 9 * sizeof(double));
-    for (int i = 0; i < 3; i++) {
-        for (int j = 0; j < 3; j++) Vx[i] += Vxx[3 * i + j] * x[3 * T + j];
-        if (Q->cf) Vx[i] += Q->cf[i];
-    }
-    int ok = 1;
-    for (int t = T - 1; t >= 0; t--) {
-        const double *At = A + 9 * t, *Bt = Bv + 3 * t, *xt = x + 3 * t;
-        double tau[4] = {xt[0], xt[1], xt[2], u[t]}, grad[4];
-        for (int i = 0; i < 4; i++) {
-            grad[i] = Q->c[i];
-            for (int j = 0; j < 4; j++) grad[i] += Q->C[4 * i + j] * tau[j];
-        }
-        double Qx[3], Qu = grad[3], BV[3], AV[9], Qxx[9], Quu, Qux[3], BtB = 0.0, BtA[3];
-        for (int j = 0; j < 3; j++) {
-            Qx[j] = grad[j];
-            for (int i = 0; i < 3; i++) Qx[j] += At[3 * i + j] * Vx[i];
-            Qu += Bt[j] * Vx[j];
-            BtB += Bt[j] * Bt[j];
-        }
-        for (int j = 0; j < 3; j++) {
-            BV[j] = 0.0;
-            for (int i = 0; i < 3; i++) BV[j] += Bt[i] * Vxx[3 * i + j];
-        }
-        for (int i = 0; i < 3; i++)          /* AV = Aᵀ Vxx */
-            for (int j = 0; j < 3; j++) {
-                double s = 0.0;
-                for (int l = 0; l < 3; l++) s += At[3 * l + i] * Vxx[3 * l + j];
-                AV[3 * i + j] = s;
-            }
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++) {
-                double s = 0.0;
-                for (int l = 0; l < 3; l++) s += AV[3 * i + l] * At[3 * l + j];
-                Qxx[3 * i + j] = Q->C[4 * i + j] + s;
-            }
-        Quu = Q->C[15];
-        for (int j = 0; j < 3; j++) Quu += BV[j] * Bt[j];
-        for (int j = 0; j < 3; j++) {
-            double s = 0.0, s2 = 0.0;
-            for (int l = 0; l < 3; l++) { s += BV[l] * At[3 * l + j]; s2 += Bt[l] * At[3 * l + j]; }
-            Qux[j] = Q->C[12 + j] + s;
-            BtA[j] = s2;
-        }
-        double h = Quu + mu * BtB, Qux_r[3];
-        for (int j = 0; j < 3; j++) Qux_r[j] = Qux[j] + mu * BtA[j];
-        int okt = h > 0.0;
-        ok = ok && okt;
-        double d = okt ? -Qu / h : 0.0, dlo = lo[t] - u[t], dhi = hi[t] - u[t];
-        double kt = fmin(fmax(d, dlo), dhi);
-        int free_ = d > dlo && d < dhi;
-        double *Kt = K + 3 * t;
-        for (int j = 0; j < 3; j++) Kt[j] = (free_ && okt) ? -Qux_r[j] / h : 0.0;
-        k[t] = kt;
-        double a = Quu * kt + Qu;
-        for (int i = 0; i < 3; i++) Vx[i] = Qx[i] + Kt[i] * a + Qux[i] * kt;
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++)
-                Vxx[3 * i + j] = Qxx[3 * i + j] + Kt[i] * Quu * Kt[j] + Kt[i] * Qux[j] + Qux[i] * Kt[j];
-        for (int i = 0; i < 3; i++)
-            for (int j = i + 1; j < 3; j++) {
-                double s = 0.5 * (Vxx[3 * i + j] + Vxx[3 * j + i]);
-                Vxx[3 * i + j] = Vxx[3 * j + i] = s;
-            }
-    }
-    return ok;
-}
-
-/* mpc.solve for B rows: x0 (B, 3), u (B, T) in: the initial guess, out: the plan; lo, hi (B, T);
- * xs (B, T+1, 3), cost (B), mu (B) in: μ0, out: final μ; history (B, iterations+1).
- * Returns the iterations run, or −1 when out of memory. */
-int deapull_coin_ilqr(const double *p, int K, const double *knots, const double *slope, const double *intercept,
-                      const double *C, const double *c, const double *Cf, const double *cf, int has_Cf, int has_cf,
-                      int B, int T, int iterations, int S, const double *alphas, double tol,
-                      const double *x0, double *u, const double *lo, const double *hi,
-                      double *xs, double *cost, double *mu, double *history)
-{
-    Model M = model_of(p, K, knots, slope, intercept);
-    Cost Q = {C, c, has_Cf ? Cf : NULL, has_cf ? cf : NULL};
-    size_t per = (size_t)T * 12 + (size_t)(T + 1) * 3 + T;       /* A, Bv, x, u of one trajectory */
-    double *work = malloc(sizeof(double) * ((size_t)B * per + (size_t)S * per + 4 * (size_t)T + 8));
-    if (!work) return -1;
-    double *nomA = work, *trial = work + (size_t)B * per, *k = trial + (size_t)S * per, *Kg = k + T;
-    int *done_rows = NULL;
-    /* nominal rollouts */
-    for (int b = 0; b < B; b++) {
-        double *x = xs + (size_t)b * (T + 1) * 3, *ub = u + (size_t)b * T;
-        for (int t = 0; t < T; t++) ub[t] = fmin(fmax(ub[t], lo[b * T + t]), hi[b * T + t]);
-        memcpy(x, x0 + 3 * b, 3 * sizeof(double));
-        cost[b] = roll(&M, &Q, T, x, ub, nomA + (size_t)b * per, nomA + (size_t)b * per + 9 * T);
-        history[(size_t)b * (iterations + 1)] = cost[b];
-    }
-    (void)done_rows;
-    int done = 0;
-    for (int it = 1; it <= iterations; it++) {
-        done = it;
-        int all_small = 1;
-        for (int b = 0; b < B; b++) {
-            double *x = xs + (size_t)b * (T + 1) * 3, *ub = u + (size_t)b * T;
-            double *A = nomA + (size_t)b * per, *Bv = A + 9 * T;
-            const double *lob = lo + (size_t)b * T, *hib = hi + (size_t)b * T;
-            int ok = backward(&Q, T, x, ub, A, Bv, lob, hib, mu[b], k, Kg);
-            double best = INFINITY;
-            int best_s = 0;
-            for (int s = 0; s < S; s++) {
-                double *tA = trial + (size_t)s * per, *tB = tA + 9 * T, *tx = tB + 3 * T, *tu = tx + 3 * (T + 1);
-                double J = 0.0;
-                memcpy(tx, x0 + 3 * b, 3 * sizeof(double));
-                for (int t = 0; t < T; t++) {
-                    const double *xb = x + 3 * t, *xc = tx + 3 * t, *Kt = Kg + 3 * t;
-                    double ut = ub[t] + alphas[s] * k[t]
-                                + (Kt[0] * (xc[0] - xb[0]) + Kt[1] * (xc[1] - xb[1]) + Kt[2] * (xc[2] - xb[2]));
-                    ut = fmin(fmax(ut, lob[t]), hib[t]);
-                    tu[t] = ut;
-                    step(&M, xc, ut, tx + 3 * (t + 1), tA + 9 * t, tB + 3 * t);
-                    J += stage_cost(&Q, xc, ut);
-                }
-                J += final_cost(&Q, tx + 3 * T);
-                if (!isfinite(J)) J = INFINITY;
-                if (J < best) { best = J; best_s = s; }
-            }
-            int better = ok && best < cost[b];
-            double gain = cost[b] - best;
-            if (better) {
-                double *tA = trial + (size_t)best_s * per, *tx = tA + 12 * T, *tu = tx + 3 * (T + 1);
-                memcpy(A, tA, 12 * (size_t)T * sizeof(double));
-                memcpy(x, tx, 3 * (size_t)(T + 1) * sizeof(double));
-                memcpy(ub, tu, (size_t)T * sizeof(double));
-                cost[b] = best;
-                mu[b] = mu[b] / 10.0 < 1e-6 ? 0.0 : mu[b] / 10.0;
-            } else {
-                mu[b] = fmin(fmax(mu[b] * 10.0, 1e-6), 1e10);
-            }
-            history[(size_t)b * (iterations + 1) + it] = cost[b];
-            if (better && !(gain <= tol * (1.0 + fabs(cost[b])))) all_small = 0;
-        }
-        if (tol > 0.0 && all_small) break;
-    }
-    free(work);
-    return done;
-}
+/* The exported step, rollout and box-iLQR (deapull_coin_step, _rollout, _ilqr): the same
+ * passes as native_mpc_memory.c's, over this file's state of width NX = 3 */
+#define ILQR_EXPORT(name) deapull_coin_##name
+#include "ilqr_passes.h"
 
 /* ---- online inference (control/inference.py, tip-contact model) ----
  * For n buffered transitions with the φ-free parts cached (x, u = observed velocity, Δt,
