@@ -9,6 +9,12 @@ export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
+#: the FEM's fidelity for the datasets and the FEM plants (a [fidelities.NAME] table of the scene;
+#: docs/fem_accuracy.md): resolved (default) resolves the tip-coin contact patch, ~3-4 min a ramp on
+#: one core; FIDELITY= runs the scene file as written, the fast preview of `make demo` (~30 s a ramp,
+#: its travel -3 % to +41 % off the resolved contact)
+FIDELITY ?= resolved
+FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
 .PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem control-fem control-fem-memory fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
@@ -19,7 +25,7 @@ help: ## list the targets
 setup: ## install apt packages, the venv, torch (CPU) and the project (idempotent)
 	@bash scripts/setup.sh
 
-demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3, dataset and plot in out/demo
+demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3 (the fast preview fidelity), dataset and plot in out/demo
 	$(DEAPULL) solve --scene coin_pull --out $(OUT)/demo
 	$(DEAPULL) plot $(OUT)/demo/C3.nc --out $(OUT)/demo/C3.png
 
@@ -33,16 +39,17 @@ mesh: setup ## mesh the default scene into $(OUT)/mesh
 	$(DEAPULL) mesh --scene coin_pull --out $(OUT)/mesh
 
 solve: setup ## FEM solve of one setup: make solve SETUP=C5
-	$(DEAPULL) solve --scene coin_pull --setup $(or $(SETUP),C3) --out $(DATA)
+	$(DEAPULL) solve --scene coin_pull --setup $(or $(SETUP),C3) $(FIDELITY_ARG) --out $(DATA)
 
-sweep: setup ## the 8 setups under mpirun -n $(NP) into $(DATA)/ (resumes if interrupted)
-	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull --out $(DATA)
+sweep: setup ## the 8 setups at FIDELITY (resolved) under mpirun -n $(NP) into $(DATA)/ (~15 min; resumes if interrupted)
+	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --out $(DATA)
 
 excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C3,C5,C7 into $(DATA)/excitation (resumes)
-	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull --setups C1,C3,C5,C7 --protocols excitation --out $(DATA)/excitation
+	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --setups C1,C3,C5,C7 --protocols excitation \
+		--out $(DATA)/excitation
 
 bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the converged reference, Newton its, 8-setup sweep; beside ABAQUS 130 s
-	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
+	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP) --fidelity '$(FIDELITY)'
 
 FEM_STUDY ?= reference,patch-rule,shipped
 fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule, the shipped default against it (FEM_STUDY=all: every study); resumes; ~1.5 h on one core
@@ -90,7 +97,7 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 # within 0.1 mm of the target down to 0.1 V per step (the coin arrives slowly enough for the estimate
 # to average): one setting for the single targets and push-push-pull-back (docs/control.md)
 FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --max-steps 3000 --mpc-model $(MODELS)/fa \
-	--mpc-max-rate 0.4 --mpc-approach-mm 0.1 --mpc-creep 0.1
+	--mpc-max-rate 0.4 --mpc-approach-mm 0.1 --mpc-creep 0.1 $(FIDELITY_ARG)
 control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (~15 min)
 	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --out $(MODELS)/fa
@@ -115,7 +122,7 @@ experiments-protocols: setup ## train on ramps + excitation, test held-out proto
 	$(DEAPULL) experiments-protocols --data $(DATA) --excitation $(DATA)/excitation --out $(OUT)/protocols --ramp-results $(OUT)/experiments
 
 report-fields: setup ## displacement fields of coin_pull C3 (XDMF) for the report's pictures, into $(OUT)/report_fields
-	$(DEAPULL) solve --scene coin_pull --setup C3 --out $(OUT)/report_fields --fields-every 10
+	$(DEAPULL) solve --scene coin_pull --setup C3 $(FIDELITY_ARG) --out $(OUT)/report_fields --fields-every 10
 
 REPORT_FAILED := $(OUT)/report/.failed-steps
 report: setup ## the reproduction report $(OUT)/report/index.html + report.md; FULL=1 first runs the missing steps

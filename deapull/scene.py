@@ -489,6 +489,7 @@ def from_dict(raw: dict, setup: str | None = None, overrides=(), source_text: st
     """
     data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in raw.items()}
     setups = data.pop("setups", {})
+    data.pop("fidelities", None)   # named override sets, expanded into ``overrides`` (fidelity_overrides)
     info = data.get("scene", {})
     if setup is None and isinstance(info, dict):
         setup = info.get("default_setup") or None
@@ -505,7 +506,7 @@ def from_dict(raw: dict, setup: str | None = None, overrides=(), source_text: st
     allowed_top = set(SECTIONS) | set(TOP_LEVEL)
     unknown = sorted(set(data) - allowed_top)
     if unknown:
-        raise SceneError(f"{unknown[0]}: unknown key; allowed: {', '.join(sorted(allowed_top))}, setups")
+        raise SceneError(f"{unknown[0]}: unknown key; allowed: {', '.join(sorted(allowed_top))}, setups, fidelities")
     if isinstance(data.get("load"), dict):
         data["load"] = _check_load(data["load"], base_dir, explicit_load)
     kwargs = {}
@@ -553,6 +554,29 @@ def setups_of(name_or_path: str | Path) -> list[str]:
     """Setup names defined by a scene file (empty for scenes without setups)."""
     raw = tomllib.loads(resolve_path(name_or_path).read_text())
     return list(raw.get("setups", {}))
+
+
+def fidelities_of(name_or_path: str | Path) -> list[str]:
+    """Fidelity names defined by a scene file (its ``[fidelities.<name>]`` tables)."""
+    raw = tomllib.loads(resolve_path(name_or_path).read_text())
+    return list(raw.get("fidelities", {}))
+
+
+def fidelity_overrides(name_or_path: str | Path, fidelity: str | None) -> tuple[str, ...]:
+    """The ``--set`` overrides (``section.key=value``) that a scene's named fidelity stands for.
+
+    A fidelity is a table ``[fidelities.<name>]`` of the scene file, written like a setup's
+    (``"mesh.tip_zone_m" = 0.002``): how finely to resolve the same physics (mesh, contact rule,
+    penalty, linear solver). None or "" is the file as written. Given as overrides, it is applied
+    before the user's ``--set`` (which win) and is recorded in every case and dataset.
+    """
+    if not fidelity:
+        return ()
+    table = tomllib.loads(resolve_path(name_or_path).read_text()).get("fidelities", {})
+    if fidelity not in table:
+        allowed = ", ".join(table) if table else "none (this scene defines no fidelities)"
+        raise SceneError(f"fidelity = {fidelity!r}: unknown fidelity of scene {str(name_or_path)!r}; allowed: {allowed}")
+    return tuple(f"{key}={tomli_w.dumps({'v': value})[4:].strip()}" for key, value in table[fidelity].items())
 
 
 def list_scenes() -> list[str]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from deapull.errors import InputError
+from deapull.workflows.args import add_fidelity_arg, overrides_of
 
 
 def cmd_control(args) -> int:
@@ -27,7 +28,7 @@ def cmd_control(args) -> int:
         mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep,
         infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
-        scene=args.scene, overrides=args.overrides, progress=not args.no_progress,
+        scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
         save_fem_runs=None if args.save_fem_runs is None else Path(args.save_fem_runs))
     import torch  # lazy: as above
     torch.set_num_threads(args.threads)
@@ -116,6 +117,7 @@ def register(sub) -> None:
     p.add_argument("--sac-steps", type=int, default=30000,
                    help="SAC training budget in env steps when it is trained here (30000: ~13 min on one core)")
     p.add_argument("--scene", default="coin_pull", help="scene of the setups and of the FEM plant (coin_pull)")
+    add_fidelity_arg(p)
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one key of the FEM plant's scene (validated like the file); repeatable")
     p.add_argument("--save-fem-runs", default=None, metavar="DIR",
@@ -136,7 +138,7 @@ def cmd_dagger(args) -> int:
         target_m=1e-3 * args.target_mm, data=Path(args.data), phi_prior=args.phi_prior,
         mpc_approach_m=1e-3 * args.mpc_approach_mm, mpc_standoff=args.mpc_standoff,
         mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, scene=args.scene,
-        overrides=args.overrides, progress=False)
+        overrides=overrides_of(args), progress=False)
     config = dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
                                  val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
                                  model=None if args.mpc_model is None else Path(args.mpc_model), seed=args.seed)
@@ -173,6 +175,7 @@ def register_dagger(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--scene", default="coin_pull", help="scene of the FEM plant (coin_pull)")
+    add_fidelity_arg(p)
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override one key of the FEM plant's scene; repeatable")
     p.set_defaults(func=cmd_dagger)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from deapull import scene as scenes
 from deapull.workflows import fem_study
-from deapull.workflows.args import add_scene_args, names
+from deapull.workflows.args import add_scene_args, names, overrides_of
 from deapull.workflows.fidelity import run_ladder, summary_table as fidelity_table
 from deapull.workflows.stability import run_stability, summary_table as stability_table
 
@@ -20,14 +20,14 @@ def cmd_fidelity(args) -> int:
     if args.surrogate:   # models and their dataset are checked before any FEM work
         from deapull.surrogate.data import load_setup  # lazy: torch loads only with --surrogate
         from deapull.workflows import ladder  # lazy: torch
-        setup = scenes.load(args.scene, setup=args.setup, overrides=args.overrides).setup
+        setup = scenes.load(args.scene, setup=args.setup, overrides=overrides_of(args)).setup
         models = ladder.load_models(args.surrogate)
         load_setup(Path(args.surrogate_data) / f"{setup}.nc")
 
         def surrogate_rows(setup_name):
             return ladder.ladder_rows(models, args.surrogate_data, setup_name, args.out)
         extra = surrogate_rows
-    rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, args.overrides,
+    rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, overrides_of(args),
                       names(args.only), args.ranks_per_case, extra_rows=extra)
     if MPI.COMM_WORLD.rank != 0:
         return 0
@@ -79,7 +79,7 @@ def register(sub) -> None:
     p = sub.add_parser("stability", help="stiff and extreme cases, each a row: converged or why not "
                                          "(run under mpirun -n N; resumes)")
     p.add_argument("--cases", default="", help="comma-separated case names (default: all)")
-    add_scene_args(p, scene=False, setup=False,
+    add_scene_args(p, scene=False, setup=False, fidelity=False,   # its cases are of several scenes
                    set_help="override one scene key in every case (validated like the file); repeatable")
     p.add_argument("--protocol", default="quick", choices=("quick", "full"),
                    help="quick: 1 s ramp with base step 0.01 s; full: the scene's steps (default quick)")

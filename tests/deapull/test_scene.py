@@ -64,6 +64,32 @@ def test_unknown_setup_lists_the_allowed_ones():
         scenes.load("free_bending", setup="C1")
 
 
+def test_a_fidelity_is_a_named_set_of_overrides_that_the_users_set_overrides(capsys):
+    fast = scenes.load("coin_pull", setup="C5")
+    sets = scenes.fidelity_overrides("coin_pull", "resolved")
+    fine = scenes.load("coin_pull", setup="C5", overrides=sets)
+    assert (fine.mesh.tip_zone_m, fine.mesh.tip_zone_divisions, fine.mesh.rim_band_m) == (0.002, 4, (0.003, 0.005))
+    assert (fine.contact.quadrature_degree, fine.contact.penalty_N_m3) == (16, 2.24e11)
+    assert fine.solver.linear_solver == "mumps" and fine.mesh.n_length == 8
+    # only resolution changes: the coin, the DEA and the load are the file's
+    assert (fine.coin, fine.dea, fine.load, fine.setup) == (fast.coin, fast.dea, fast.load, "C5")
+    assert scenes.fidelity_overrides("coin_pull", None) == () and scenes.fidelities_of("coin_pull") == ["resolved"]
+    # --set after the fidelity wins
+    assert scenes.load("coin_pull", overrides=(*sets, "mesh.n_length=12")).mesh.n_length == 12
+    assert main(["show-scene", "coin_release", "--fidelity", "resolved", "--set", "mesh.n_length=12"]) == 0
+    shown = capsys.readouterr().out
+    assert "tip_zone_m = 0.002" in shown and "n_length = 12" in shown
+
+
+def test_an_unknown_fidelity_lists_the_allowed_ones(capsys):
+    with pytest.raises(scenes.SceneError, match="'fine'.*allowed: resolved"):
+        scenes.fidelity_overrides("coin_pull", "fine")
+    with pytest.raises(scenes.SceneError, match="no fidelities"):
+        scenes.fidelity_overrides("free_bending", "resolved")
+    assert main(["show-scene", "coin_pull", "--fidelity", "fine"]) == 2
+    assert "fidelity = 'fine'" in capsys.readouterr().err
+
+
 def test_missing_and_unknown_keys_in_a_file(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('[scene]\ndescription = "x"\n')

@@ -189,3 +189,11 @@ def test_a_near_rigid_reference_gives_its_bound_parts_and_the_shipped_error(tmp_
     assert "0.31 %" in text and "0.03 %" in text and "-2.82 %" in text.replace("−", "-"), text
     claim = rep.claims[-1]
     assert "1.3112" in claim.ours and "outside" in claim.verdict
+    # datasets made at the resolved fidelity: their error is the claim's, the fast preview's is beside it
+    rep2 = Report(tmp_path / "report2", Inputs.under(tmp_path, fem_study=study), progress=False)
+    sec2 = Section("fem-accuracy", "t")
+    sections_fem.penalty_table(rep2, sec2, ref, -0.0087, -0.0282, "resolved")
+    text = " ".join(b[1] for b in sec2.blocks if b[0] == "p").replace("−", "-")
+    assert "fidelity `resolved`" in text and "-0.87 %" in text and "fast preview" in text and "-2.82 %" in text, text
+    claim = rep2.claims[-1]
+    assert "(resolved) -0.87 %" in claim.ours.replace("−", "-") and "within" in claim.verdict
