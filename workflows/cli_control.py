@@ -25,7 +25,7 @@ def cmd_control(args) -> int:
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
-        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep,
+        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, unreachable=args.unreachable,
         infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
@@ -92,6 +92,9 @@ def register(sub) -> None:
                    help="ramp-rate-aware MPC: at most this |dV| per step (V), in its plan and on the plant; a "
                         "slow push carries a heavy coin further (e.g. 0.4, the sweep's 0-400 V in 1 s; default 0: "
                         "--dv-max)")
+    p.add_argument("--unreachable", default="refuse", choices=("refuse", "report"),
+                   help="an FEM plant whose dataset's ramp does not take the coin to the task: refuse the run "
+                        "(exit 2, default) or report it as unreachable in the table and run the other plants")
     p.add_argument("--mpc-creep", type=float, default=0.5,
                    help="the MPC's smallest |dV| per step outside the hold (V; default 0.5, capped by the rate); below "
                         "it --mpc-approach-mm can slow the last stretch, e.g. 0.1 with --mpc-approach-mm 0.05")

@@ -66,6 +66,8 @@ COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max
            "ms_per_iteration", "solve_ms_per_iteration", "inference_ms_per_iteration", "plant_ms_per_step",
            "episode_wall_s", "fem_run",
            "training_steps", "status")
+#: what ``--unreachable`` may say (ControlConfig.unreachable)
+UNREACHABLE = ("refuse", "report")
 #: packages whose versions run.json records (+ dolfinx, petsc4py with an FEM plant)
 VERSIONED = ("numpy", "torch", "gymnasium", "stable_baselines3")
 
@@ -121,6 +123,9 @@ class ControlConfig:
     progress: bool = True
     save_fem_runs: Path | None = None
     run_tag: str = ""
+    #: a plant that cannot reach the task: "refuse" the run (exit 2) or "report" it as an
+    #: unreachable row and run the other plants
+    unreachable: str = "refuse"
 
     @property
     def task(self) -> tuple:
@@ -175,10 +180,13 @@ def parse_noises(text: str) -> list[float]:
     return out
 
 
-def check(config: ControlConfig, mpc_model_trained: bool = True) -> None:
+def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
     """Refuse bad settings, naming the argument, before any model is loaded.
     ``mpc_model_trained=False``: the MPC's model is made later (``deapull dagger``'s round 0),
-    so its folder is not required yet."""
+    so its folder is not required yet. Returns the FEM plants that cannot reach the task, by
+    name, with why (only with ``unreachable="report"``; "refuse" raises instead)."""
+    if config.unreachable not in UNREACHABLE:
+        raise InputError(f"--unreachable {config.unreachable!r}: choose one of {', '.join(UNREACHABLE)}")
     for name, value, low in (("--episodes", config.episodes, 1), ("--max-steps", config.max_steps, 1),
                              ("--hold", config.hold_steps, 0), ("--seed", config.seed, 0),
                              ("--sac-steps", config.sac_steps, 1)):
@@ -193,8 +201,7 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> None:
         if not (math.isfinite(t) and t < 0):
             raise InputError(f"--setpoints-mm {1e3 * t!r}: every setpoint must be a finite number < 0 (mm; the "
                              "coin moves toward -x)")
-    if any(p.kind == "fem" for p in config.plants):
-        check_fem(config)
+    unreachable = check_fem(config) if any(p.kind == "fem" for p in config.plants) else {}
     for spec in config.plants:
         if _needs_surrogate(config, spec):
             _require_model(config.folder(config.plant_model, spec.setup), "--plant-model")
@@ -221,6 +228,7 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> None:
             _require_model(Path(config.mpc_model), "--mpc-model")
             if not (config.mpc_oracle or config.mpc_no_infer):
                 _require_inference(Path(config.mpc_model))
+    return unreachable
 
 
 def _require_inference(folder: Path) -> None:
@@ -237,19 +245,21 @@ def _require_inference(folder: Path) -> None:
                          f"or --mpc-oracle (the plant's true φ)")
 
 
-def check_fem(config: ControlConfig) -> None:
+def check_fem(config: ControlConfig) -> dict:
     """The FEM plants' part of :func:`check`: dolfinx is installed, the scene (with ``--set``) is
     valid, and the task lies within each FEM plant's reach.
 
     An FEM plant's reach is its own dataset's (``--data``/<setup>.nc, the FEM of the same scene
     under the 0–400 V ramp): a target beyond the coin's travel there is refused. Without the
     dataset, or with a ``--set`` of the coin (the dataset is then another coin's run), the reach
-    is not checked (one FEM ramp would cost a whole solve), and the log says so."""
+    is not checked (one FEM ramp would cost a whole solve), and the log says so. Returns the
+    plants beyond reach with the refusal's message (``unreachable="report"``; else it raises)."""
     if importlib.util.find_spec("dolfinx") is None:
         raise InputError("--plant fem:...: the FEM plant needs dolfinx (FEniCSx), which is not installed")
     task = task_of(config)
     other_coin = any(o.split("=")[0].strip().startswith("coin.") for o in config.overrides)
     scenes.load(config.scene, setup=config.plants[0].setup, overrides=config.overrides)
+    unreachable = {}
     for spec in config.plants:
         if spec.kind != "fem":
             continue
@@ -261,8 +271,17 @@ def check_fem(config: ControlConfig) -> None:
             log.info("%s: the target's reach is not checked (no %s to read it from)", spec.name, path)
         else:
             reach = float(np.min(load_setup(path).x))
-            task.refuse_beyond(spec.name, reach, f"its FEM dataset {path} takes the coin to {1e3 * reach:.4f} mm "
-                               "at most (0 to 400 V)")
+            try:
+                task.refuse_beyond(spec.name, reach, f"its FEM dataset {path} takes the coin to {1e3 * reach:.4f} "
+                                   "mm at most (0 to 400 V)")
+            except InputError as err:
+                if config.unreachable != "report":
+                    raise
+                log.warning("%s is left out, reported as unreachable: %s", spec.name, err)
+                unreachable[spec.name] = str(err)
+    if unreachable and len(unreachable) == len(config.plants):
+        raise InputError("no plant can reach the task: " + "; ".join(unreachable.values()))
+    return unreachable
 
 
 def _require_model(folder: Path, option: str) -> None:
@@ -332,7 +351,7 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
 
 def run(config: ControlConfig) -> list[Episode]:
     """Every policy × plant × noise for ``episodes`` episodes; writes the outputs."""
-    check(config)
+    unreachable = check(config)
     bench = resolve(config)
     task = bench.task
     config.out.mkdir(parents=True, exist_ok=True)
@@ -342,8 +361,11 @@ def run(config: ControlConfig) -> list[Episode]:
                                          **provenance.package_versions(packages)}, indent=2)
     total = len(config.plants) * len(config.policies) * len(config.noises) * config.episodes
     episodes: list[Episode] = []
+    left_out = [unreachable_row(config, spec, name, noise, unreachable[spec.name]) for spec in config.plants
+                if spec.name in unreachable for name in config.policies for noise in config.noises]
     with tqdm(total=total, desc="control episodes", unit="episode", disable=not config.progress) as bar:
-        for spec in config.plants:
+        bar.update(len(left_out) * config.episodes)
+        for spec in (s for s in config.plants if s.name not in unreachable):
             plant = bench.plant(spec)
             if spec.kind == "surrogate":    # an FEM plant's reach is checked by check_fem
                 task.check_reach(spec.name, plant)
@@ -361,8 +383,18 @@ def run(config: ControlConfig) -> list[Episode]:
                             ep.row["fem_run"] = str(plant.save(Path(config.save_fem_runs) / f"{stem}.nc", stem))
                         episodes.append(ep)
                         bar.update(1)
-    write_outputs(config.out, episodes, task)
+    write_outputs(config.out, episodes, task, left_out)
     return episodes
+
+
+def unreachable_row(config: ControlConfig, spec, policy: str, noise: float, why: str) -> dict:
+    """The CSV row of a plant left out because it cannot reach the task: nothing reached or
+    settled, and ``status`` says why (no episode ran)."""
+    return {"policy": policy, "plant": spec.name, "setup": spec.setup, "episode": 0, "seed": config.seed,
+            "noise_std_m": noise, "setpoints_mm": ";".join(f"{1e3 * t:g}" for t in config.task),
+            "reached": False, "settled": False, "iterations_to_target": math.nan, "overshoot_m": None,
+            "final_abs_error_m": math.nan, "ms_per_iteration": math.nan, "training_steps": None, "steps_run": 0,
+            "status": f"unreachable: {why}"}
 
 
 def fem_run_name(setup: str, tag: str, policy: str, noise: float, episode: int) -> str:
@@ -372,8 +404,10 @@ def fem_run_name(setup: str, tag: str, policy: str, noise: float, episode: int) 
     return f"{setup}{tag}_{re.sub(r'[^A-Za-z0-9]', '-', policy)}_n{noise:g}_e{episode}"
 
 
-def write_outputs(out: Path, episodes: list[Episode], task: Task) -> None:
-    rows = [e.row for e in episodes]
+def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list[dict] = ()) -> None:
+    """The CSV, table, traces and figures of the episodes; ``left_out``: rows of the plants that
+    could not reach the task (in the CSV and the table, no traces)."""
+    rows = [e.row for e in episodes] + list(left_out)
     columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred", "crlb") for f in PHI_FIELDS]
     write_csv(out / "control.csv", rows, columns)
     write_text(out / "table.md", summary_table(rows) + "\n")

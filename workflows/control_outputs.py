@@ -92,8 +92,9 @@ def summary_rows(rows: list[dict]) -> list[dict]:
         q = np.percentile(its, [25, 50, 75]) if its else [math.nan] * 3
         paper_its, paper_ms = CONTROL[policy.split("+")[0]]
         overshoot = [r["overshoot_m"] for r in group if r.get("overshoot_m") is not None]
+        beyond = all(str(r.get("status", "")).startswith("unreachable") for r in group)
         out.append({"policy": policy, "plant": plant, "noise": noise, "task": task,
-                    "reached": f"{len(its)}/{len(group)}",
+                    "reached": "unreachable" if beyond else f"{len(its)}/{len(group)}",
                     "settled": f"{sum(r['settled'] for r in group)}/{len(group)}",
                     "its": "–" if not its else f"{q[1]:.0f} [{q[0]:.0f}–{q[2]:.0f}]",
                     "error_mm": 1e3 * float(np.median([r["final_abs_error_m"] for r in group])),

@@ -163,6 +163,26 @@ def test_a_target_beyond_the_fem_plants_dataset_exits_2_before_any_mesh(tmp_path
     assert not (out / "fem").exists()
 
 
+def test_an_unreachable_fem_plant_is_reported_and_the_others_run(tmp_path, sweep_dir, capsys):
+    """``--unreachable report``: fem:C5 (the fixture's ramp takes its coin 0.48 mm) cannot reach
+    −0.6 mm, so it is a table row "unreachable" with no episode and no mesh, while fem:C3 (0.69 mm)
+    runs; with every plant beyond reach the run still exits 2. Broken once: the unreachable plant
+    kept in the loop (its mesh was made and its episode run)."""
+    out = tmp_path / "out"
+    argv = ["control", "--policy", "heur", "--plant", "fem:C3,fem:C5", "--data", str(sweep_dir), "--target-mm",
+            "-0.6", "--max-steps", "3", "--hold", "0", "--unreachable", "report", "--out", str(out), "--no-progress",
+            *[a for s in TINY_MESH for a in ("--set", s)]]
+    assert main(argv) == 0
+    rows = {r["plant"]: r for r in _rows(out / "control.csv")}
+    assert rows["fem:C5"]["status"].startswith("unreachable: --target-mm -0.6: fem:C5 cannot reach it")
+    assert rows["fem:C5"]["reached"] == "False" and rows["fem:C5"]["steps_run"] == "0"
+    assert rows["fem:C3"]["status"] == "ok" and int(rows["fem:C3"]["steps_run"]) > 0
+    assert not (out / "fem" / "C5").exists() and (out / "fem" / "C3").exists()
+    assert "| unreachable |" in (out / "table.md").read_text()
+    argv[argv.index("fem:C3,fem:C5")] = "fem:C5"
+    assert main(argv) == 2 and "no plant can reach the task" in capsys.readouterr().err
+
+
 def test_the_multi_setpoint_task_from_the_cli(base, tmp_path, fs1_dir, capsys):
     """``--setpoints-mm=-0.2,-0.4,-0.3`` (push, push, pull back on the fixture's surrogate): the
     CSV has one row per episode with each setpoint's iterations and the counts, the table a
