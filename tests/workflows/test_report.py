@@ -137,7 +137,9 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     assert "mpc.pytorch" in html
     # the FEM closed loop: counted from its CSV (one of the two fake episodes settled)
     fem = claims["The MPC on the FEM plant (noise 0.1 mm)"]
-    assert fem["ours"] == "settled in 1/2 episodes" and fem["anchor"] == "#control-fem-0"
+    assert fem["ours"] == "settled in 1/2 episodes; 1 plant(s) cannot reach the target (fem:C5)"
+    assert fem["anchor"] == "#control-fem-0"
+    assert re.search(r'<tr id="control-fem-2"><td>fem:C5</td>.*?<td>unreachable</td>', html)
     assert re.search(r'<tr id="control-fem-1">', html) and "img/control_fem_control_fem_position_fem_C1_noise0.0001.png" \
         in page.imgs
     # provenance: every source file listed with its hash
@@ -240,7 +242,9 @@ def _fake_studies(inputs: report.Inputs) -> None:
         _png(inputs.control / f"position_surrogate_C2_noise{noise}.png")
     fem = [dict(policy="mpc", plant=f"fem:C{c}", noise_std_m=1e-4, setpoints_mm="-1", iterations_per_setpoint="900",
                 iterations_to_target=900, setpoints_settled=1, settled=c != 2, reached=True, overshoot_m=0.0,
-                final_abs_error_m=4e-6, plant_ms_per_step=60.0, episode_wall_s=90.0) for c in (1, 2)]
+                final_abs_error_m=4e-6, plant_ms_per_step=60.0, episode_wall_s=90.0, status="ok") for c in (1, 2)]
+    fem.append({**{k: "" for k in fem[0]}, "policy": "mpc", "plant": "fem:C5", "noise_std_m": 1e-4, "setpoints_mm": "-1", "reached": False,
+                "settled": False, "status": "unreachable: --target-mm -1: fem:C5 cannot reach it"})
     inputs.control_fem.mkdir(parents=True)
     write_csv(inputs.control_fem / "control.csv", fem, list(fem[0]))
     _png(inputs.control_fem / "position_fem_C1_noise0.0001.png")

@@ -161,7 +161,7 @@ def control_points(folder: Path, make: str) -> list[dict]:
     if not path.is_file():
         return [dict(policy="–", plant="–", status="not run", make=make, source=str(path))]
     target = run_config(folder).get("target_m") or -1e-3
-    rows = read_csv(path)
+    rows = [r for r in read_csv(path) if not r.get("status", "").startswith("unreachable")]   # no episode ran
     groups: dict = {}
     for r in rows:
         groups.setdefault((r["policy"], r["plant"], num(r, "noise_std_m")), []).append(r)
