@@ -80,7 +80,7 @@ bench-control-fem: setup ## one MPC episode on the FEM plant per setup in FEM_PL
 	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --out $(MODELS)/fa
 	$(PY) bench/bench_control_fem.py --plants $(FEM_PLANTS) --mpc-model $(MODELS)/fa --data $(DATA) \
-		--out $(OUT)/bench_control_fem
+		--fidelity '$(FIDELITY)' --out $(OUT)/bench_control_fem
 
 MODELS ?= $(OUT)/models
 NOISE ?= 0,1e-5,1e-4,1e-3

@@ -1,7 +1,7 @@
 """FEM-in-the-loop benchmark (``make bench-control-fem``): one closed-loop episode of the MPC
 on the FEM plant of each ``--plants`` setup, timed per part, in one run.
 
-Per episode: ms per FEM step (``advance(V, 1 ms)`` on the shipped scene, serial), ms per MPC
+Per episode: ms per FEM step (``advance(V, 1 ms)`` at ``--fidelity``, default resolved, serial), ms per MPC
 plan (the compiled iLQR on f_a) and per inference update, the closed-loop wall time of the
 episode (placement, the start ramp and every step), and the ratio FEM step / MPC plan: how
 much of the loop is the plant. Beside the paper's figures (``deapull.paper``: its MPC's time
@@ -18,6 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from deapull import scene as scenes  # noqa: E402
 from deapull.io import markdown_table, write_json  # noqa: E402
 from deapull.paper import ABAQUS_POINTS, ABAQUS_S, MPC_S_PER_ITERATION  # noqa: E402
 from deapull.workflows import control  # noqa: E402
@@ -35,6 +36,9 @@ def main(argv=None) -> int:
     ap.add_argument("--approach-mm", type=float, default=0.1, help="the MPC's approach limit (mm; as make control-fem)")
     ap.add_argument("--creep", type=float, default=0.1, help="the MPC's smallest |dV| per step (V; as make control-fem)")
     ap.add_argument("--standoff", type=float, default=0.0, help="the MPC's stand-off in stds (as make control-fem)")
+    ap.add_argument("--fidelity", default="resolved",
+                    help="the FEM plant's fidelity (a [fidelities.NAME] of coin_pull; '' = the file as written; "
+                         "default resolved, as the datasets)")
     ap.add_argument("--out", default="out/bench_control_fem")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s: %(message)s")
@@ -43,7 +47,8 @@ def main(argv=None) -> int:
                                                                                                      "--plants"))),
         noises=[args.noise], out=Path(args.out), episodes=1, hold_steps=args.hold, max_steps=args.max_steps,
         data=Path(args.data), mpc_model=args.mpc_model, phi_prior="coins", mpc_approach_m=1e-3 * args.approach_mm,
-        mpc_standoff=args.standoff, mpc_max_rate_V=args.max_rate, mpc_creep_V=args.creep, progress=False)
+        mpc_standoff=args.standoff, mpc_max_rate_V=args.max_rate, mpc_creep_V=args.creep, progress=False,
+        overrides=list(scenes.fidelity_overrides("coin_pull", args.fidelity)), unreachable="report")
     rows = [e.row for e in control.run(config)]
     table = []
     for r in rows:
