@@ -100,7 +100,7 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 # "unreachable" in the table, and the others run
 FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --max-steps 3000 --mpc-model $(MODELS)/fa \
 	--mpc-max-rate 0.4 --mpc-approach-mm 0.1 --mpc-creep 0.1 --unreachable report $(FIDELITY_ARG)
-control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (~15 min)
+control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (resolved: ~1 h on one core, ~5 min an episode; FIDELITY=: ~15 min)
 	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --out $(MODELS)/fa
 	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
@@ -109,7 +109,7 @@ control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e
 
 # the same two tasks with the tip-memory f_a (docs/control.md, "An f_a with the tip's memory"): it cannot
 # infer φ, so both plan with the coin prior's median (--mpc-no-infer)
-control-fem-memory: setup ## control-fem's single targets (fem:C3, fem:C5) and push-push-pull-back with an f-memory f_a (~10 min)
+control-fem-memory: setup ## control-fem's single targets (fem:C3, fem:C5) and push-push-pull-back with an f-memory f_a (resolved: ~40 min; FIDELITY=: ~10 min)
 	@test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
 	$(DEAPULL) control $(FEM_CONTROL:$(MODELS)/fa=$(MODELS)/fa_mem) --mpc-no-infer \
