@@ -197,3 +197,37 @@ def test_a_near_rigid_reference_gives_its_bound_parts_and_the_shipped_error(tmp_
     assert "fidelity `resolved`" in text and "-0.87 %" in text and "fast preview" in text and "-2.82 %" in text, text
     claim = rep2.claims[-1]
     assert "(resolved) -0.87 %" in claim.ours.replace("−", "-") and "within" in claim.verdict
+
+
+def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path):
+    """The report's model table shows the scene the datasets were made with: their ``scene_toml``
+    matched against the scene file's fidelities (resolved: the tip zone, 9 × 9 points, × 100
+    penalty), the file as written, or neither (the test fixture's tiny mesh: the file is shown and
+    the sentence says so). Broken once: the fidelity looked up on C1.nc, absent here."""
+    import xarray as xr
+
+    from deapull import dataset, scene as scenes
+    from deapull.workflows.report import sections_fem
+    from deapull.workflows.report.document import Report
+    from deapull.workflows.report.inputs import Inputs
+    from tests.conftest import SWEEP
+    for fidelity, want in (("resolved", "resolved"), ("", ""), (None, None)):
+        data = tmp_path / f"data_{fidelity}"
+        data.mkdir()
+        with xr.open_dataset(SWEEP / "C3.nc") as ds:
+            ds = ds.load()
+        if fidelity is not None:
+            sc = scenes.load("coin_pull", setup="C3", overrides=scenes.fidelity_overrides("coin_pull", fidelity))
+            ds.attrs["scene_toml"] = sc.to_toml()
+        dataset.write(ds, data / "C3.nc")
+        assert sections_fem.datasets_fidelity(data) == want
+        sec = sections_fem.section_model(Report(tmp_path / f"r_{fidelity}", Inputs.under(tmp_path, data=data),
+                                                progress=False))
+        text = " ".join(str(b[1]) for b in sec.blocks if b[0] == "p")
+        table = " ".join(str(c) for b in sec.blocks if b[0] == "table" for row in b[1].rows for c in row)
+        if want == "resolved":
+            assert "--fidelity resolved" in text and "2 mm tip zone in 4" in table and "9 × 9" in table
+            assert "2.24e+11" in table
+        else:
+            assert "tip zone" not in table and "2.24e+09" in table and "5 × 5" in table
+        assert ("other overrides" in text) == (want is None)

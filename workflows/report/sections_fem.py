@@ -23,17 +23,54 @@ from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
 #: issue 23's goal for the DEA's penetration into the table at the shipped penalty (µm)
 TABLE_PENETRATION_GOAL_UM = 1.0
 
+def datasets_fidelity(data: Path, setup: str = "C3") -> str | None:
+    """The fidelity of the scene that ``data``/<setup>.nc was made at, from its ``scene_toml``:
+    a ``[fidelities.NAME]`` of the scene, "" for the file as written, None when it is none of
+    them (other ``--set`` overrides) or the dataset is absent."""
+    import tomllib
+    path = Path(data) / f"{setup}.nc"
+    if not path.is_file():
+        return None
+    text = str(dataset.read(path, ("t",)).attrs.get("scene_toml", ""))
+    try:
+        made = scenes.from_dict(tomllib.loads(text)).to_dict()
+    except (tomllib.TOMLDecodeError, scenes.SceneError):
+        return None
+    for name in ("", *scenes.fidelities_of(SCENE)):
+        if scenes.load(SCENE, setup=setup, overrides=scenes.fidelity_overrides(SCENE, name)).to_dict() == made:
+            return name
+    return None
+
+
+def mesh_patch_text(m) -> str:
+    """The resolved contact patch of a mesh section (tip zone, rim band), or ""."""
+    out = ""
+    if m.tip_zone_m:
+        out += (f"; a {m.tip_zone_m * 1e3:g} mm tip zone in {m.tip_zone_divisions} "
+                f"({m.tip_zone_m * 1e3 / max(m.tip_zone_divisions, 1):g} mm elements)")
+    if m.rim_band_m:
+        a, b = m.rim_band_m
+        out += f"; the rim band {a * 1e3:g} ≤ |z| ≤ {b * 1e3:g} mm in {m.rim_band_divisions}"
+    return out
+
+
 def section_model(rep: Report) -> Section:
     sec = Section("model", "The model: geometry, materials, scene")
-    sc = scenes.load(SCENE)
+    fidelity = datasets_fidelity(rep.inputs.data)
+    sc = scenes.load(SCENE, overrides=scenes.fidelity_overrides(SCENE, fidelity))
     rep.source(scenes.resolve_path(SCENE), sec)
     d, c, ld = sc.dea, sc.coin, sc.load
     e0 = ld.voltage_max_V / d.film_thickness_m
     eps = 8.854187817e-12 * d.relative_permittivity
     strain = eps * e0 ** 2 / (2 * d.youngs_modulus_Pa)
     pullin = 0.69 * math.sqrt(d.youngs_modulus_Pa / 3 / eps)
+    fid_arg = f" --fidelity {fidelity}" if fidelity else ""
+    made = (f"the datasets in `{rep.inputs.data}` are made at its fidelity `{fidelity}`" if fidelity else
+            f"the datasets in `{rep.inputs.data}` are made from the file as written" if fidelity == "" else
+            f"the datasets in `{rep.inputs.data}` were made with other overrides (their `scene_toml`); the table "
+            "shows the file as written")
     sec.p(f"Scene `{SCENE}` (`deapull/scenes/{SCENE}.toml`, resolved with `deapull show-scene {SCENE} --setup "
-          f"{sc.setup}`): {sc.scene.description}. A unimorph DEA (active electrode stack on a passive layer) is "
+          f"{sc.setup}{fid_arg}`; {made}): {sc.scene.description}. A unimorph DEA (active electrode stack on a passive layer) is "
           f"clamped at x = 0 with its free end at x = −{d.length_m * 1e3:g} mm resting on a steel coin; "
           f"V rises 0 → {ld.voltage_max_V:g} V in {ld.ramp_time_s:g} s ({ld.protocol}). y is up, the coin moves "
           "toward −x (the paper's V^T convention). Every number below comes from the scene file.")
@@ -53,10 +90,12 @@ def section_model(rep: Report) -> Section:
         ("coin centre from the tip", f"{c.center_from_tip_m * 1e3:g} mm toward the clamp", "coin.center_from_tip_m"),
         (f"coin density, μ_t, μ_b (setup {sc.setup})", f"{c.density_kg_m3 / 1e3:g} g/cm³, {c.mu_t:g}, {c.mu_b:g}",
          "coin.density_kg_m3, coin.mu_t, coin.mu_b"),
-        ("contact", f"penalty {sc.contact.penalty_N_m3:.3g} N/m³, friction regularised at "
-         f"{sc.contact.slip_rate_regularisation_m_s:g} m/s", "contact.*"),
+        ("contact", f"penalty {sc.contact.penalty_N_m3:.3g} N/m³, {sc.contact.quadrature_degree // 2 + 1} × "
+         f"{sc.contact.quadrature_degree // 2 + 1} {sc.contact.quadrature_rule} points per facet, friction "
+         f"regularised at {sc.contact.slip_rate_regularisation_m_s:g} m/s", "contact.*"),
         ("mesh", f"{sc.mesh.cell} order {sc.mesh.order}, {sc.mesh.n_length} × {sc.mesh.n_width} × "
-         f"({sc.mesh.n_active} + {sc.mesh.n_passive}) cells, level {sc.mesh.level}", "mesh.*"),
+         f"({sc.mesh.n_active} + {sc.mesh.n_passive}) cells, level {sc.mesh.level}" + mesh_patch_text(sc.mesh),
+         "mesh.*"),
         ("solver", f"{sc.solver.formulation}" + (" (Taylor–Hood u–p)" if sc.solver.formulation == "mixed" else "")
          + f", electrostatics {sc.solver.electrostatics}",
          "solver.*"),
