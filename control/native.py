@@ -117,133 +117,27 @@ def _np(t) -> np.ndarray:
     return np.ascontiguousarray(torch.as_tensor(t).detach().cpu().numpy(), dtype=np.float64)
 
 
-class NativeCoinDynamics(CoinDynamics):
-    """:class:`CoinDynamics` of an f-coulomb f_a evaluated in C (module docstring).
+class _NativeDynamics(CoinDynamics):
+    """The compiled calls of a piecewise-linear f_a (step, Jacobians, rollout, box-iLQR), written
+    once over the state size :attr:`n_state` and the library's export :attr:`prefix`
+    (``control/ilqr_passes.h``); a subclass loads its library and its model's constants."""
 
-    Same constructor; :attr:`phi` may be replaced between calls. Rows of every call are
-    independent. V must stay inside [0, ``v_max_V``] (the plan's clipping keeps it there).
-    """
+    n_state: int
+    prefix: str
 
-    def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
-        super().__init__(model, phi, dt, dv_max_V, v_max_V)
-        if not self.model.can("compiled_mpc") or library() is None:
-            raise RuntimeError("the native coin MPC runs f-coulomb models where a C compiler is available")
-        pieces = self.model.material_pieces(0.0, self.v_max_V)
+    def _load_pieces(self) -> float:
+        """The material network's pieces on [0, V_max] into the arrays the C code reads; returns
+        its first output at V = 0 (the rest stroke)."""
+        pieces = self._pieces = self.model.material_pieces(0.0, self.v_max_V)
         self._knots = np.ascontiguousarray(pieces["knots"], dtype=np.float64)
         self._slope = np.ascontiguousarray(pieces["slope"], dtype=np.float64)
         self._intercept = np.ascontiguousarray(pieces["intercept"], dtype=np.float64)
         t0 = (0.0 - pieces["mean"]) / pieces["scale"]
         k0 = int(np.clip(np.searchsorted(self._knots, t0, side="right") - 1, 0, len(self._slope) - 1))
-        rest = self._slope[k0, 0] * t0 + self._intercept[k0, 0]
-        self._static = [pieces["mean"], pieces["scale"], pieces["stroke_scale"], pieces["fy_mean"],
-                        pieces["fy_scale"], rest]
-        self._lib = library()
+        return self._slope[k0, 0] * t0 + self._intercept[k0, 0]
 
-    def _params(self) -> np.ndarray:
-        m = self.model
-        phi = self.phi
-        mean, scale, sx, fym, fys, rest = self._static
-        return np.array([mean, scale, sx, fym, fys, phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"),
-                         m.gravity_m_s2, m.slip_rate_reg_m_s, self.dt, self.dv_max_V, self.v_max_V, m.iterations,
-                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, rest], dtype=np.float64)
-
-    def _head(self):
-        return (_p(self._params_now), len(self._slope), _p(self._knots), _p(self._slope), _p(self._intercept))
-
-    def _call(self, xi, nu, jac: bool):
-        self._params_now = self._params()
-        x = _np(xi).reshape(-1, 3)
-        n = _np(nu).reshape(-1)
-        N = len(x)
-        out = np.empty((N, 3))
-        A = np.empty((N, 3, 3)) if jac else None
-        Bv = np.empty((N, 3)) if jac else None
-        self._lib.deapull_coin_step(*self._head(), N, _p(x), _p(n), _p(out), _p(A) if jac else None,
-                                    _p(Bv) if jac else None)
-        return out, A, Bv
-
-    def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
-        out, _, _ = self._call(xi, nu, False)
-        return torch.from_numpy(out)
-
-    def jacobian(self, xi: torch.Tensor, nu: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A = ∂ξ'/∂ξ (N, 3, 3) and B = ∂ξ'/∂ν (N, 3, 1) (what :func:`mpc.linearize` uses)."""
-        _, A, Bv = self._call(xi, nu, True)
-        return torch.from_numpy(A), torch.from_numpy(Bv).unsqueeze(-1)
-
-    def rollout(self, xi0: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
-        """:func:`mpc.rollout` in one C call: ξ (B, T+1, 3) from ξ0 (B, 3) under ν (B, T, 1)."""
-        self._params_now = self._params()
-        x0 = _np(xi0).reshape(-1, 3)
-        u = _np(nu).reshape(len(x0), -1)
-        B, T = u.shape
-        xs = np.empty((B, T + 1, 3))
-        self._lib.deapull_coin_rollout(*self._head(), B, T, _p(x0), _p(u), _p(xs))
-        return torch.from_numpy(xs)
-
-    def solve(self, cost: mpc.QuadCost, x0: torch.Tensor, u_init: torch.Tensor, lower=None, upper=None, *,
-              iterations: int = 20, alphas=mpc.ALPHAS, tol: float = 0.0, mu0: float = 0.0) -> mpc.Solution:
-        """:func:`mpc.solve` (same arguments, m = 1, a constant :class:`~mpc.QuadCost`) in C."""
-        if not isinstance(cost, mpc.QuadCost) or cost.C.shape != (4, 4) or cost.c.shape != (4,):
-            raise TypeError("the native solver takes a time-invariant QuadCost with C (4, 4) and c (4,)")
-        self._params_now = self._params()
-        x0 = _np(x0).reshape(-1, 3)
-        B = len(x0)
-        u = _np(u_init).reshape(B, -1).copy()
-        T = u.shape[1]
-        like = torch.zeros(B, T, 1, dtype=torch.float64)
-        lo = _np(mpc._bounds(lower, like, -1.0)).reshape(B, T)
-        hi = _np(mpc._bounds(upper, like, 1.0)).reshape(B, T)
-        C, c = _np(cost.C), _np(cost.c)
-        Cf = _np(cost.C_final) if cost.C_final is not None else np.zeros((3, 3))
-        cf = _np(cost.c_final) if cost.c_final is not None else np.zeros(3)
-        steps = np.ascontiguousarray(alphas, dtype=np.float64)
-        xs = np.empty((B, T + 1, 3))
-        J = np.empty(B)
-        mu = np.full(B, float(mu0))
-        history = np.zeros((B, iterations + 1))
-        done = self._lib.deapull_coin_ilqr(
-            *self._head(), _p(C), _p(c), _p(Cf), _p(cf), int(cost.C_final is not None), int(cost.c_final is not None),
-            B, T, iterations, len(steps), _p(steps), float(tol), _p(x0), _p(u), _p(lo), _p(hi), _p(xs), _p(J),
-            _p(mu), _p(history))
-        if done < 0:
-            raise MemoryError("the native MPC could not allocate its scratch memory")
-        return mpc.Solution(x=torch.from_numpy(xs), u=torch.from_numpy(u).unsqueeze(-1), cost=torch.from_numpy(J),
-                            history=torch.from_numpy(history[:, :done + 1]), mu=torch.from_numpy(mu),
-                            iterations=done)
-
-
-class NativeMemoryDynamics(CoinDynamics):
-    """:class:`CoinDynamics` of an f-memory f_a (ξ = (x, u, V, P, T)) evaluated in C
-    (``native_mpc_memory.c``): the same interface as :class:`NativeCoinDynamics`, n = 5."""
-
-    n_state = 5
-
-    def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
-        super().__init__(model, phi, dt, dv_max_V, v_max_V)
-        if not self.model.can("compiled_mpc_memory") or memory_library() is None or self.n != self.n_state:
-            raise RuntimeError("the native memory MPC runs f-memory models where a C compiler is available")
-        from deapull.surrogate.models.memory import COMPLIANCE_SCALE
-        pieces = self.model.material_pieces(0.0, self.v_max_V)
-        self._knots = np.ascontiguousarray(pieces["knots"], dtype=np.float64)
-        self._slope = np.ascontiguousarray(pieces["slope"], dtype=np.float64)
-        self._intercept = np.ascontiguousarray(pieces["intercept"], dtype=np.float64)
-        if self._slope.shape[1] != 4:
-            raise RuntimeError(f"f-memory's material network has 4 outputs, got {self._slope.shape[1]}")
-        t0 = (0.0 - pieces["mean"]) / pieces["scale"]
-        k0 = int(np.clip(np.searchsorted(self._knots, t0, side="right") - 1, 0, len(self._slope) - 1))
-        rest = self._slope[k0, 0] * t0 + self._intercept[k0, 0]
-        self._static = [pieces["mean"], pieces["scale"], pieces["stroke_scale"], pieces["fy_mean"],
-                        pieces["fy_scale"], COMPLIANCE_SCALE, rest]
-        self._lib = memory_library()
-
-    def _params(self) -> np.ndarray:
-        m, phi = self.model, self.phi
-        mean, scale, sx, fym, fys, c0, rest = self._static
-        pu, tu = (float(v) for v in self.memory_units)
-        return np.array([mean, scale, sx, fym, fys, c0, phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"),
-                         m.gravity_m_s2, m.slip_rate_reg_m_s, self.dt, self.dv_max_V, self.v_max_V, m.iterations,
-                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, pu, tu, rest], dtype=np.float64)
+    def _fn(self, name: str):
+        return getattr(self._lib, f"{self.prefix}_{name}")
 
     def _head(self):
         return (_p(self._params_now), len(self._slope), _p(self._knots), _p(self._slope), _p(self._intercept))
@@ -257,27 +151,26 @@ class NativeMemoryDynamics(CoinDynamics):
         out = np.empty((N, n))
         A = np.empty((N, n, n)) if jac else None
         Bv = np.empty((N, n)) if jac else None
-        self._lib.deapull_memory_step(*self._head(), N, _p(x), _p(v), _p(out), _p(A) if jac else None,
-                                      _p(Bv) if jac else None)
+        self._fn("step")(*self._head(), N, _p(x), _p(v), _p(out), _p(A) if jac else None, _p(Bv) if jac else None)
         return out, A, Bv
 
     def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
         return torch.from_numpy(self._call(xi, nu, False)[0])
 
     def jacobian(self, xi: torch.Tensor, nu: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A = ∂ξ'/∂ξ (N, 5, 5) and B = ∂ξ'/∂ν (N, 5, 1)."""
+        """A = ∂ξ'/∂ξ (N, n, n) and B = ∂ξ'/∂ν (N, n, 1) (what :func:`mpc.linearize` uses)."""
         _, A, Bv = self._call(xi, nu, True)
         return torch.from_numpy(A), torch.from_numpy(Bv).unsqueeze(-1)
 
     def rollout(self, xi0: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
-        """:func:`mpc.rollout` in one C call: ξ (B, T+1, 5) from ξ0 (B, 5) under ν (B, T, 1)."""
+        """:func:`mpc.rollout` in one C call: ξ (B, T+1, n) from ξ0 (B, n) under ν (B, T, 1)."""
         n = self.n_state
         self._params_now = self._params()
         x0 = _np(xi0).reshape(-1, n)
         u = _np(nu).reshape(len(x0), -1)
         B, T = u.shape
         xs = np.empty((B, T + 1, n))
-        self._lib.deapull_memory_rollout(*self._head(), B, T, _p(x0), _p(u), _p(xs))
+        self._fn("rollout")(*self._head(), B, T, _p(x0), _p(u), _p(xs))
         return torch.from_numpy(xs)
 
     def solve(self, cost: mpc.QuadCost, x0: torch.Tensor, u_init: torch.Tensor, lower=None, upper=None, *,
@@ -303,7 +196,7 @@ class NativeMemoryDynamics(CoinDynamics):
         J = np.empty(B)
         mu = np.full(B, float(mu0))
         history = np.zeros((B, iterations + 1))
-        done = self._lib.deapull_memory_ilqr(
+        done = self._fn("ilqr")(
             *self._head(), _p(C), _p(c), _p(Cf), _p(cf), int(cost.C_final is not None), int(cost.c_final is not None),
             B, T, iterations, len(steps), _p(steps), float(tol), _p(x0), _p(u), _p(lo), _p(hi), _p(xs), _p(J),
             _p(mu), _p(history))
@@ -312,6 +205,60 @@ class NativeMemoryDynamics(CoinDynamics):
         return mpc.Solution(x=torch.from_numpy(xs), u=torch.from_numpy(u).unsqueeze(-1), cost=torch.from_numpy(J),
                             history=torch.from_numpy(history[:, :done + 1]), mu=torch.from_numpy(mu),
                             iterations=done)
+
+
+class NativeCoinDynamics(_NativeDynamics):
+    """:class:`CoinDynamics` of an f-coulomb f_a evaluated in C (module docstring).
+
+    Same constructor; :attr:`phi` may be replaced between calls. Rows of every call are
+    independent. V must stay inside [0, ``v_max_V``] (the plan's clipping keeps it there).
+    """
+
+    n_state, prefix = 3, "deapull_coin"
+
+    def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
+        super().__init__(model, phi, dt, dv_max_V, v_max_V)
+        if not self.model.can("compiled_mpc") or library() is None:
+            raise RuntimeError("the native coin MPC runs f-coulomb models where a C compiler is available")
+        rest = self._load_pieces()
+        p = self._pieces
+        self._static = [p["mean"], p["scale"], p["stroke_scale"], p["fy_mean"], p["fy_scale"], rest]
+        self._lib = library()
+
+    def _params(self) -> np.ndarray:
+        m = self.model
+        phi = self.phi
+        mean, scale, sx, fym, fys, rest = self._static
+        return np.array([mean, scale, sx, fym, fys, phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"),
+                         m.gravity_m_s2, m.slip_rate_reg_m_s, self.dt, self.dv_max_V, self.v_max_V, m.iterations,
+                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, rest], dtype=np.float64)
+
+
+class NativeMemoryDynamics(_NativeDynamics):
+    """:class:`CoinDynamics` of an f-memory f_a (ξ = (x, u, V, P, T)) evaluated in C
+    (``native_mpc_memory.c``): the same interface as :class:`NativeCoinDynamics`, n = 5."""
+
+    n_state, prefix = 5, "deapull_memory"
+
+    def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
+        super().__init__(model, phi, dt, dv_max_V, v_max_V)
+        if not self.model.can("compiled_mpc_memory") or memory_library() is None or self.n != self.n_state:
+            raise RuntimeError("the native memory MPC runs f-memory models where a C compiler is available")
+        from deapull.surrogate.models.memory import COMPLIANCE_SCALE
+        rest = self._load_pieces()
+        if self._slope.shape[1] != 4:
+            raise RuntimeError(f"f-memory's material network has 4 outputs, got {self._slope.shape[1]}")
+        p = self._pieces
+        self._static = [p["mean"], p["scale"], p["stroke_scale"], p["fy_mean"], p["fy_scale"], COMPLIANCE_SCALE, rest]
+        self._lib = memory_library()
+
+    def _params(self) -> np.ndarray:
+        m, phi = self.model, self.phi
+        mean, scale, sx, fym, fys, c0, rest = self._static
+        pu, tu = (float(v) for v in self.memory_units)
+        return np.array([mean, scale, sx, fym, fys, c0, phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"),
+                         m.gravity_m_s2, m.slip_rate_reg_m_s, self.dt, self.dv_max_V, self.v_max_V, m.iterations,
+                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, pu, tu, rest], dtype=np.float64)
 
 
 def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
