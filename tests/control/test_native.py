@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from deapull.control import mpc, native
-from tests.control.jacobian_check import assert_jacobians_match_central_differences
+from tests.control.jacobian_check import assert_jacobians_match_central_differences, assert_plans_match_torch
 
 F64 = torch.float64
 TRUTH_PHI = (1.36e-3, 0.2, 0.5)
@@ -72,13 +72,7 @@ def test_native_solver_gives_the_torch_solvers_plans(pair, final):
     cost = coin_cost(target)
     if not final:
         cost = mpc.QuadCost(cost.C, cost.c)
-    u0 = torch.cat([torch.ones(2, T, 1, dtype=F64), torch.zeros(1, T, 1, dtype=F64)])
-    ref = mpc.solve(slow, cost, x0, u0, -1.0, 1.0, iterations=6)
-    got = fast.solve(cost, x0, u0, -1.0, 1.0, iterations=6)
-    assert bool((ref.history[:, -1] < ref.history[:, 0]).all())     # every plan improved
-    torch.testing.assert_close(got.history, ref.history, rtol=1e-10, atol=1e-10)
-    torch.testing.assert_close(got.u, ref.u, rtol=0, atol=1e-6)
-    torch.testing.assert_close(got.x, ref.x, rtol=0, atol=1e-6)
+    u0, ref, got = assert_plans_match_torch(slow, fast, cost, x0, 6, T)
     # (μ is not compared: at a converged plan, whether a step that gains 1e-16 counts as a
     # gain is round-off, and it sets μ)
     # the same plans through mpc.solve with the native step and Jacobians
