@@ -71,15 +71,13 @@ class CoinDynamics:
         V_next = torch.clamp(V + nu[:, 0] * self.dv_max_V, 0.0, self.v_max_V)
         s = torch.stack([x, u], -1)
         a = torch.stack([V_next, torch.full_like(V_next, self.dt)], -1)
-        head = [None, None, V_next / V_UNIT_V]
         if self.n == 3:
             s_next, _ = self.model.plan_step(s, a, V, self.phi)
-            tail = []
+            tail = ()
         else:
             s_next, _, memory = self.model.plan_step_memory(s, a, V, xi[:, 3:] * self.memory_units, self.phi)
-            tail = list((memory / self.memory_units).unbind(-1))
-        head[:2] = s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S
-        return torch.stack(head + tail, -1)
+            tail = (memory / self.memory_units).unbind(-1)
+        return torch.stack([s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S, V_next / V_UNIT_V, *tail], -1)
 
     def state(self, x_m: float, u_m_s: float, V_V: float, memory=None) -> torch.Tensor:
         """ξ (1, n) of a coin at x (m) with velocity u (m/s) under V (V); with memory entries
