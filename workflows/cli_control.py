@@ -93,8 +93,9 @@ def register(sub) -> None:
                         "slow push carries a heavy coin further (e.g. 0.4, the sweep's 0-400 V in 1 s; default 0: "
                         "--dv-max)")
     p.add_argument("--unreachable", default="refuse", choices=("refuse", "report"),
-                   help="an FEM plant whose dataset's ramp does not take the coin to the task: refuse the run "
-                        "(exit 2, default) or report it as unreachable in the table and run the other plants")
+                   help="a plant that cannot take the coin to the task (FEM: its dataset's ramp; surrogate: the "
+                        "fastest push): refuse the run (exit 2, default) or report it as unreachable in the "
+                        "table and run the other plants")
     p.add_argument("--mpc-creep", type=float, default=0.5,
                    help="the MPC's smallest |dV| per step outside the hold (V; default 0.5, capped by the rate); below "
                         "it --mpc-approach-mm can slow the last stretch, e.g. 0.1 with --mpc-approach-mm 0.05")

@@ -138,6 +138,33 @@ def test_a_target_beyond_the_plants_reach_exits_2_and_is_never_moved(base, tmp_p
     assert not (tmp_path / "far" / "control.csv").exists()
 
 
+def test_an_unreachable_surrogate_plant_is_reported_and_the_others_run(base, tmp_path, capsys):
+    """``--unreachable report`` for surrogate plants too: C5's coin (μ_b 0.25 on the fixture's
+    f_s) gets less far under the fastest push than C1's, so a target between the two reaches is a
+    row "unreachable" for surrogate:C5 while surrogate:C1 runs; with only C5 the run exits 2.
+    Broken once: the reach checked inside the episode loop with "refuse" semantics (exit 2)."""
+    reach = {}
+    for setup in ("C1", "C5"):
+        argv = [*base, "--plant", f"surrogate:{setup}", "--policy", "heur", "--target-mm", "-5"]
+        assert main(argv) == 2
+        reach[setup] = float(capsys.readouterr().err.split("gets to ")[1].split(" mm")[0])
+    assert reach["C5"] > reach["C1"] + 0.05, reach               # C5's coin gets less far
+    target = f"{0.5 * (reach['C1'] + reach['C5']):.4f}"
+    out = tmp_path / "report"
+    argv = [*base, "--plant", "surrogate:C1,surrogate:C5", "--policy", "heur", "--episodes", "1", "--max-steps", "5",
+            "--hold", "0", "--target-mm", target, "--unreachable", "report", "--out", str(out)]
+    assert main(argv) == 0
+    rows = {r["plant"]: r for r in _rows(out / "control.csv")}
+    assert rows["surrogate:C5"]["status"].startswith(f"unreachable: --target-mm {float(target):g}: surrogate:C5 "
+                                                     "cannot reach it")
+    assert rows["surrogate:C5"]["steps_run"] == "0" and rows["surrogate:C1"]["status"] == "ok"
+    assert int(rows["surrogate:C1"]["steps_run"]) > 0
+    argv[argv.index("surrogate:C1,surrogate:C5")] = "surrogate:C5"
+    argv[argv.index(str(out))] = str(tmp_path / "none")
+    assert main(argv) == 2 and "no plant can reach the task" in capsys.readouterr().err
+    assert not (tmp_path / "none" / "control.csv").exists()
+
+
 def test_the_papers_adam_and_lm_are_both_reachable_from_the_cli(base, tmp_path, fs1_dir, capsys):
     for optimizer in ("adam", "lm"):
         out = tmp_path / optimizer
