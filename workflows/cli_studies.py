@@ -40,7 +40,7 @@ def cmd_fidelity(args) -> int:
 def cmd_stability(args) -> int:
     from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
     rows = run_stability(args.out, MPI.COMM_WORLD, args.protocol, names(args.cases), args.overrides,
-                         args.ranks_per_case)
+                         args.ranks_per_case, args.fidelity)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print(stability_table(rows))
@@ -81,6 +81,10 @@ def register(sub) -> None:
     p.add_argument("--cases", default="", help="comma-separated case names (default: all)")
     add_scene_args(p, scene=False, setup=False, fidelity=False,   # its cases are of several scenes
                    set_help="override one scene key in every case (validated like the file); repeatable")
+    p.add_argument("--fidelity", default=None, metavar="NAME",
+                   help="a named fidelity of coin_pull ([fidelities.NAME]; resolved: the resolved contact patch), "
+                        "applied before --set to every case whose scene defines it (the free pull-in's "
+                        "free_bending runs as written, and its row says so); default: the files as written")
     p.add_argument("--protocol", default="quick", choices=("quick", "full"),
                    help="quick: 1 s ramp with base step 0.01 s; full: the scene's steps (default quick)")
     _common(p)

@@ -89,23 +89,42 @@ def _specs(base) -> list[Spec]:
     return specs
 
 
-def stability_cases(protocol: str = "quick", overrides=(), names=None) -> list[Case]:
-    """The study's cases; ``names`` picks cases (default: all). Bad names or --set raise InputError."""
+def fidelity_of_case(scene: str, fidelity: str | None) -> tuple[str, ...]:
+    """``fidelity``'s overrides for a case of ``scene``: the base scene must define it (else
+    SceneError naming what it defines); a case of another scene (free_bending's pull-in) takes it
+    only where that scene defines it too, and is run as its file is written otherwise."""
+    if not fidelity or (scene != BASE_SCENE and fidelity not in scenes.fidelities_of(scene)):
+        return ()
+    return scenes.fidelity_overrides(scene, fidelity)
+
+
+def stability_cases(protocol: str = "quick", overrides=(), names=None, fidelity: str | None = None) -> list[Case]:
+    """The study's cases; ``names`` picks cases (default: all). ``fidelity`` names one of the base
+    scene's fidelities (:func:`fidelity_of_case`), applied before ``overrides``. Bad names, an
+    unknown fidelity or a bad --set raise InputError."""
     if protocol not in ("quick", "full"):
         raise InputError(f"--protocol {protocol!r}: expected one of quick, full")
-    shipped = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=overrides)
+    fid = fidelity_of_case(BASE_SCENE, fidelity)
+    shipped = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=(*fid, *overrides))
     study = protocol_overrides(shipped, protocol)
-    base = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=(*overrides, *study))
+    base = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=(*fid, *overrides, *study))
     specs = _specs(base)
     known = [s.name for s in specs]
     unknown = [n for n in names or () if n not in known]
     if unknown:
         raise InputError(f"--cases {unknown[0]!r}: unknown case; allowed: {', '.join(known)}")
     chosen = [s for s in specs if not names or s.name in names]
-    return [Case(s.name, s.scene, BASE_SETUP if s.scene == BASE_SCENE else None, (*overrides, *study, *s.overrides),
-                 s.description, {"expected": s.expected, "protocol": protocol,
-                                 "voltage_max_V": PULL_IN_V if s.expected == INSTABILITY else base.load.voltage_max_V})
+    return [Case(s.name, s.scene, BASE_SETUP if s.scene == BASE_SCENE else None,
+                 (*fidelity_of_case(s.scene, fidelity), *overrides, *study, *s.overrides), _described(s, fidelity),
+                 {"expected": s.expected, "protocol": protocol,
+                  "voltage_max_V": PULL_IN_V if s.expected == INSTABILITY else base.load.voltage_max_V})
             for s in chosen]
+
+
+def _described(spec: Spec, fidelity: str | None) -> str:
+    if fidelity and not fidelity_of_case(spec.scene, fidelity):
+        return f"{spec.description} ({spec.scene} as written: it defines no fidelity {fidelity!r})"
+    return spec.description
 
 
 # --- the table -------------------------------------------------------------------------
@@ -163,15 +182,15 @@ def write_markdown(rows, path: Path, header: str) -> None:
 
 
 def run_stability(out_dir, comm, protocol: str = "quick", names=None, overrides=(),
-                  ranks_per_case: int = 1) -> list[dict] | None:
+                  ranks_per_case: int = 1, fidelity: str | None = None) -> list[dict] | None:
     """Run (or resume) the stability cases; rank 0 writes stability.csv/.md and returns the rows."""
     out_dir = Path(out_dir)
-    cases = stability_cases(protocol, overrides, names)
+    cases = stability_cases(protocol, overrides, names, fidelity)
     results = run_cases(cases, out_dir, comm, ranks_per_case, desc="stability")
     if comm.rank != 0:
         return None
     rows = [finish_row(r) for r in results]
-    header = (f"Base: `{BASE_SCENE}` setup `{BASE_SETUP}`, protocol `{protocol}`"
+    header = (f"Base: `{BASE_SCENE}` setup `{BASE_SETUP}`, fidelity `{fidelity or 'as written'}`, protocol `{protocol}`"
               f"{' (1 s ramp, base step 0.01 s)' if protocol == 'quick' else ''}, {comm.size} MPI rank(s), "
               f"{ranks_per_case} per case; extra --set: {' '.join(overrides) or 'none'}. {provenance.summary()}.")
     write_csv(out_dir / "stability.csv", rows, CSV_COLUMNS)

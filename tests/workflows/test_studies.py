@@ -252,3 +252,26 @@ def test_a_crashed_case_is_solved_again_on_resume_a_failed_one_is_not(tmp_path):
     rows = run_cases(cases, tmp_path, MPI.COMM_WORLD, solve=fake_solve)
     assert solved == ["crashes", "diverges", "crashes"]
     assert [r["status"] for r in rows] == ["ok", "failed"]
+
+
+def test_stability_at_a_named_fidelity_applies_it_to_the_cases_whose_scene_defines_it():
+    """``deapull stability --fidelity resolved`` (no solve here): coin_pull's cases carry the
+    fidelity's overrides first, so the penalty cases scale the resolved penalty; the free
+    pull-in (free_bending defines none) runs as written and says so; an unknown fidelity is
+    refused naming the allowed ones. Broken once: the fidelity dropped from the cases (only the
+    base scene had it)."""
+    from deapull import scene as scenes
+    from deapull.errors import InputError
+    resolved = dict(o.split("=", 1) for o in scenes.fidelity_overrides("coin_pull", "resolved"))
+    penalty = float(resolved["contact.penalty_N_m3"])
+    cases = {c.name: c for c in stability.stability_cases(fidelity="resolved")}
+    base = cases["baseline"]
+    assert all(o in base.overrides for o in scenes.fidelity_overrides("coin_pull", "resolved"))
+    assert f"contact.penalty_N_m3={penalty * 100.0!r}" in cases["penalty-x100"].overrides
+    free = cases["pullin-free-bending"]
+    assert not any(o.startswith("mesh.tip_zone") for o in free.overrides)
+    assert "as written" in free.description and "as written" not in base.description
+    plain = {c.name: c for c in stability.stability_cases()}
+    assert not any(o.startswith("mesh.tip_zone") for o in plain["baseline"].overrides)
+    with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: resolved"):
+        stability.stability_cases(fidelity="finest")
