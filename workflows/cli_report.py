@@ -29,7 +29,7 @@ def cmd_report(args) -> int:
           f"{len(summary['claims'])} paper numbers beside ours)")
     for name in summary["missing"]:
         step = report.STEP[name]
-        print(f"missing: {step.what}: {step.make}")
+        print(f"missing: {step.what}: {step.hint(inputs)[0]}")
     if args.check == "no":
         return 0
     if find_browser(args.browser) is None:

@@ -80,6 +80,24 @@ def _png_ok(path: Path) -> None:
 
 # --- partial outputs ---------------------------------------------------------------------
 
+def test_missing_hints_name_the_folders_the_report_reads():
+    """``make report OUT=out/resolved``: a missing step's hint is ``make <step> OUT=out/resolved``
+    and its command writes there; at the defaults the hint is the bare target. Broken once: the
+    hint printed the default paths (``--out out/stability``) whatever OUT was."""
+    moved = report.Inputs.under("out/resolved", "data")
+    make, command = report.STEP["stability"].hint(moved)
+    assert make == "make stability OUT=out/resolved" and command.endswith("--out out/resolved/stability")
+    make, command = report.STEP["report-fields"].hint(moved)
+    assert make == "make report-fields OUT=out/resolved" and "--out out/resolved/report_fields" in command
+    make, command = report.STEP["excitation"].hint(report.Inputs.under("out/resolved", "data2"))
+    assert make == "make excitation DATA=data2" and command.endswith("--out data2/excitation")
+    assert report.STEP["sweep"].hint(report.Inputs()) == (
+        "make sweep", "mpirun -n 2 deapull sweep --scene coin_pull --fidelity resolved --out data")
+    for step in report.STEPS:
+        make, command = step.hint(moved)
+        assert make.startswith(step.make) and "{" not in command, (make, command)
+
+
 def test_report_from_partial_outputs_names_what_is_missing(tmp_path):
     data = _sweep(tmp_path, ["C1", "C2", "C3"])
     out = tmp_path / "report"

@@ -3,6 +3,7 @@ result files and nowhere else, a diverged model never gets a finite error, the b
 numpy's percentiles of the episodes."""
 import csv
 import json
+import re
 
 import numpy as np
 
@@ -60,6 +61,10 @@ def test_the_points_are_exactly_those_of_the_result_files(tmp_path):
     assert 'src="img/error_time.png"' in html and 'href="tables/error-time-points.csv"' in html
     assert "error_time.png" in summary["images"]
     assert "make fem-study" in html and "make bench-fem" in html
+    # the section's Sources in one order whatever the hash seed: sorted (broken once: a set's order)
+    section = html.split('<section id="error-time">')[1].split("</section>")[0]
+    sources = re.findall(r"<code>([^<]*)</code></a>", section.split("Sources:")[1])
+    assert len(sources) == 2 and sources == sorted(sources), sources
 
 
 def test_the_contact_convergence_levels_come_from_the_reference_file(tmp_path):

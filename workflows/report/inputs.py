@@ -53,40 +53,62 @@ class Inputs:
 
 @dataclass(frozen=True)
 class Step:
-    """A make target and the command behind it, and the files that show it has run."""
+    """A make target and the command behind it, and the files that show it has run.
+
+    ``command`` is a template over the :class:`Inputs` fields (``{data}``, ``{stability}``, …) and
+    ``{out}``, the folder the make targets' ``OUT`` names; ``output`` is the field whose
+    folder the target writes (:meth:`hint` reads ``OUT``/``DATA`` from it)."""
     name: str
-    make: str
     command: str
     what: str
+    output: str
+
+    @property
+    def make(self) -> str:
+        return f"make {self.name}"
+
+    def hint(self, inputs: "Inputs") -> tuple[str, str]:
+        """(make line, command) that make this step's outputs where ``inputs`` reads them: the
+        make line adds ``OUT=``/``DATA=`` where they are not the defaults (out, data)."""
+        data = Path(inputs.data)
+        written = Path(getattr(inputs, self.output))
+        out = (written.parent.parent if self.output == "fields" else written.parent)
+        extra = []
+        if self.output not in ("data", "excitation") and out != Path("out"):
+            extra.append(f"OUT={out}")
+        if data != Path("data"):
+            extra.append(f"DATA={data}")
+        paths = {f: str(getattr(inputs, f)) for f in inputs.__dataclass_fields__}
+        return " ".join([self.make, *extra]), self.command.format(out=out, **paths)
 
 
 STEPS = (
-    Step("sweep", "make sweep", "mpirun -n 2 deapull sweep --scene coin_pull --out data",
-         "the 8 FEM datasets C1..C8 (the sweep, the surrogates and control read them)"),
-    Step("report-fields", "make report-fields",
-         "deapull solve --scene coin_pull --setup C3 --out out/report_fields --fields-every 10",
-         "the displacement fields of one run (pictures and animation)"),
-    Step("bench-fem", "make bench-fem", "python bench/bench_fem.py --out out/bench_fem --np 2",
-         "the FEM's wall time, travel error and sweep time beside ABAQUS (docs/fem_accuracy.md)"),
-    Step("fidelity", "make fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --out out/fidelity",
-         "the error-against-run-time ladder"),
-    Step("stability", "make stability", "mpirun -n 2 deapull stability --out out/stability",
-         "the stiff and extreme cases"),
-    Step("experiments", "make experiments", "deapull experiments --data data --out out/experiments",
-         "the paper's six experiment sets (Table II, box plot, rollouts)"),
-    Step("excitation", "make excitation", "mpirun -n 2 deapull sweep --scene coin_pull --setups C1,C3,C5,C7 "
-         "--protocols excitation --out data/excitation", "the FEM under ramp-hold-ramp, triangle, release and "
-         "random voltages"),
-    Step("experiments-protocols", "make experiments-protocols", "deapull experiments-protocols --data data "
-         "--excitation data/excitation --out out/protocols --ramp-results out/experiments",
-         "the surrogates on held-out protocols and coins"),
-    Step("control", "make control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 "
-         "--episodes 10 --noise 0,1e-5,1e-4,1e-3 --out out/control", "the closed-loop episodes (Fig. 6)"),
-    Step("control-fem", "make control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --episodes 1 "
-         "--noise 1e-4 --phi-prior coins --mpc-max-rate 0.4 --max-steps 3000 --out "
-         "out/control_fem", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)"),
-    Step("bench-control", "make bench-control", "python bench/bench_control.py --out out/bench_control",
-         "the MPC step beside mpc.pytorch"),
+    Step("sweep", "mpirun -n 2 deapull sweep --scene coin_pull --fidelity resolved --out {data}",
+         "the 8 FEM datasets C1..C8 (the sweep, the surrogates and control read them)", "data"),
+    Step("report-fields", "deapull solve --scene coin_pull --setup C3 --fidelity resolved --out {out}/report_fields "
+         "--fields-every 10", "the displacement fields of one run (pictures and animation)", "fields"),
+    Step("bench-fem", "python bench/bench_fem.py --out {bench_fem} --np 2",
+         "the FEM's wall time, travel error and sweep time beside ABAQUS (docs/fem_accuracy.md)", "bench_fem"),
+    Step("fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --out {fidelity}",
+         "the error-against-run-time ladder", "fidelity"),
+    Step("stability", "mpirun -n 2 deapull stability --fidelity resolved --out {stability}",
+         "the stiff and extreme cases", "stability"),
+    Step("experiments", "deapull experiments --data {data} --out {experiments}",
+         "the paper's six experiment sets (Table II, box plot, rollouts)", "experiments"),
+    Step("excitation", "mpirun -n 2 deapull sweep --scene coin_pull --fidelity resolved --setups C1,C3,C5,C7 "
+         "--protocols excitation --out {excitation}", "the FEM under ramp-hold-ramp, triangle, release and "
+         "random voltages", "excitation"),
+    Step("experiments-protocols", "deapull experiments-protocols --data {data} --excitation {excitation} "
+         "--out {protocols} --ramp-results {experiments}", "the surrogates on held-out protocols and coins",
+         "protocols"),
+    Step("control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 "
+         "--noise 0,1e-5,1e-4,1e-3 --out {control}", "the closed-loop episodes (Fig. 6)", "control"),
+    Step("control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --fidelity resolved --episodes 1 "
+         "--noise 1e-4 --phi-prior coins --mpc-max-rate 0.4 --max-steps 3000 --unreachable report --out "
+         "{control_fem}", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)",
+         "control_fem"),
+    Step("bench-control", "python bench/bench_control.py --out {bench_control}", "the MPC step beside mpc.pytorch",
+         "bench_control"),
 )
 STEP = {s.name: s for s in STEPS}
 

@@ -114,8 +114,9 @@ def render_html(report: Report, title: str, lead: list[str], standalone: bool = 
                              f"{inline_html(label)}</a></p>")
             elif kind == "missing":
                 _, what, step = block
+                make, command = step.hint(report.inputs)
                 parts.append(f'<div class="missing"><strong>Missing:</strong> {inline_html(what)}. Make it with '
-                             f"<code>{html.escape(step.make)}</code> (runs <code>{html.escape(step.command)}</code>)."
+                             f"<code>{html.escape(make)}</code> (runs <code>{html.escape(command)}</code>)."
                              "</div>")
             elif kind == "table":
                 t = block[1]
@@ -160,7 +161,8 @@ def render_markdown(report: Report, title: str, lead: list[str]) -> str:
                 lines += [f"[{block[3]}](tables/{block[1]})", ""]
             elif kind == "missing":
                 _, what, step = block
-                lines += [f"> **Missing:** {what}. Make it with `{step.make}` (runs `{step.command}`).", ""]
+                make, command = step.hint(report.inputs)
+                lines += [f"> **Missing:** {what}. Make it with `{make}` (runs `{command}`).", ""]
             elif kind == "table":
                 t = block[1]
                 if t.caption:

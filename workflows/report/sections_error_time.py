@@ -187,8 +187,8 @@ def section_error_time(rep: Report) -> Section:
     inputs = rep.inputs
     points = error_time_points(inputs)
     ctrl = control_points(inputs.control, "make control") + control_points(inputs.control_fem, "make control-fem")
-    for src in {p["source"] for p in points + ctrl if p["status"] != "not run" and p["source"].endswith(
-            (".csv", ".json"))}:
+    for src in sorted({p["source"] for p in points + ctrl if p["status"] != "not run" and p["source"].endswith(
+            (".csv", ".json"))}):                # sorted: a set's order changes with the hash seed
         rep.source(Path(src), sec)
     sec.p("Left: the wall time of one 1 s simulation of coin_pull C3 (log) against its error in % of the coin's "
           "travel (log): ● the x(t) MAE, ○ the coin-travel error, each against that study's reference (the fidelity "

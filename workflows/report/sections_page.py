@@ -56,7 +56,7 @@ def section_summary(rep: Report) -> Section:
     if missing:
         steps = list(dict.fromkeys(step for _, step in missing))
         sec.p("Not on this page yet (each section says what and how): " + "; ".join(
-            f"{STEP[s].what} — `{STEP[s].make}`" for s in steps) + ". `make report FULL=1` runs the missing steps "
+            f"{STEP[s].what} — `{STEP[s].hint(rep.inputs)[0]}`" for s in steps) + ". `make report FULL=1` runs the missing steps "
             "(they resume) and rebuilds the page.")
     sec.p("Where we differ by design: the FEM is dolfinx (mixed u–p hexahedra, penalty contact with regularised "
           "Coulomb friction), not ABAQUS; the flat-top contact pushes the coin away from the clamp (−x) rather than "
