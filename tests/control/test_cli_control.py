@@ -177,6 +177,7 @@ def test_the_papers_adam_and_lm_are_both_reachable_from_the_cli(base, tmp_path, 
     assert bad.value.code == 2 and "--infer-optimizer" in capsys.readouterr().err
 
 
+@pytest.mark.fem      # the FEM plant's check needs dolfinx
 def test_a_target_beyond_the_fem_plants_dataset_exits_2_before_any_mesh(tmp_path, sweep_dir, capsys):
     """The FEM plant's reach is its own dataset's travel (the fixture's C1: ~0.65 mm): −5 mm is
     refused naming the dataset, before the plant's mesh is made. Broken once: the check
@@ -190,6 +191,7 @@ def test_a_target_beyond_the_fem_plants_dataset_exits_2_before_any_mesh(tmp_path
     assert not (out / "fem").exists()
 
 
+@pytest.mark.fem      # the FEM plant's check needs dolfinx
 def test_an_unreachable_fem_plant_is_reported_and_the_others_run(tmp_path, sweep_dir, capsys):
     """``--unreachable report``: fem:C5 (the fixture's ramp takes its coin 0.48 mm) cannot reach
     −0.6 mm, so it is a table row "unreachable" with no episode and no mesh, while fem:C3 (0.69 mm)
