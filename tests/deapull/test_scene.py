@@ -69,8 +69,9 @@ def test_a_fidelity_is_a_named_set_of_overrides_that_the_users_set_overrides(cap
     sets = scenes.fidelity_overrides("coin_pull", "resolved")
     fine = scenes.load("coin_pull", setup="C5", overrides=sets)
     assert (fine.mesh.tip_zone_m, fine.mesh.tip_zone_divisions, fine.mesh.rim_band_m) == (0.002, 4, (0.003, 0.005))
-    assert (fine.contact.quadrature_degree, fine.contact.penalty_N_m3) == (16, 2.24e11)
+    assert (fine.contact.quadrature_degree, fine.contact.penalty_N_m3, fine.table.penalty_N_m3) == (20, 2.24e11, 1e12)
     assert fine.solver.linear_solver == "mumps" and fine.mesh.n_length == 8
+    assert (fine.table.height_m, fine.table.mu_g) == (fast.table.height_m, fast.table.mu_g)   # the same table
     # only resolution changes: the coin, the DEA and the load are the file's
     assert (fine.coin, fine.dea, fine.load, fine.setup) == (fast.coin, fast.dea, fast.load, "C5")
     assert scenes.fidelity_overrides("coin_pull", None) == () and scenes.fidelities_of("coin_pull") == ["resolved"]
