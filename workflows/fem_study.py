@@ -109,10 +109,10 @@ UNIFORM = ladder(LADDER)
 LEVELS = ladder(EXTRA_LEVELS)
 DT = {"dt-16x8x2x2-720": (*HALF, *UMF, *mesh(16, 8, 2, 2), *quad("gauss", 8))}
 #: the scene file as written (the fast preview), its contact rule doubled (5 x 5 -> 9 x 9), and the same
-#: two for the datasets' fidelity ``resolved`` (9 x 9 -> 17 x 17)
+#: two for the datasets' fidelity ``resolved`` (11 x 11 -> 22 x 22)
 RESOLVED = scenes.fidelity_overrides("coin_pull", "resolved")
 SHIPPED = {"shipped": (), "shipped-9x9": quad("gauss", 16), "resolved": RESOLVED,
-           "resolved-17x17": (*RESOLVED, *quad("gauss", 32))}
+           "resolved-22x22": (*RESOLVED, *quad("gauss", 42))}
 
 QUADRATURE = {f"q-{n}x{w}-{rule}{deg}": (*HALF, *UMF, *mesh(n, w), *quad(rule, deg))
               for n, w in ((16, 2), (16, 4), (32, 4))
