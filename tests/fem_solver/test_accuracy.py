@@ -226,3 +226,17 @@ def test_steps_with_fewer_contact_points_than_the_scene_asks_are_counted_and_war
         assert any(f"{below} of {len(n)} steps had fewer" in r.getMessage() for r in caplog.records)
     else:
         assert below == 0 and not warned
+
+
+def test_mumps_factorises_with_the_workspace_relaxation(tmp_path):
+    """MUMPS gets ICNTL(14) = MUMPS_WORKSPACE_RELAXATION (its default 20 %: under MPI on a loaded
+    machine a run's factorisations failed, DIVERGED_LINEAR_SOLVE with MUMPS's INFOG(1) < 0).
+    Broken once: the option deleted with the others after SNES read them (MUMPS kept 20)."""
+    from deapull.fem_solver.problem import MUMPS_WORKSPACE_RELAXATION
+    sc, problem = _problem(tmp_path, "coin_pull", *TINY_C3[:-1], "solver.linear_solver='mumps'")
+    problem.set_load(0.0, 0.0, 1e-3)
+    result = problem.solve()                      # gravity: at least one Newton step, one factorisation
+    assert result.iterations >= 1
+    factor = problem.snes.getKSP().getPC().getFactorMatrix()
+    assert factor.getMumpsIcntl(14) == MUMPS_WORKSPACE_RELAXATION != 20
+    assert problem._factor_error() == ""             # a good factorisation reports no MUMPS error

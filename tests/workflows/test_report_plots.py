@@ -206,7 +206,7 @@ def test_a_near_rigid_reference_gives_its_bound_parts_and_the_shipped_error(tmp_
 
 def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path):
     """The report's model table shows the scene the datasets were made with: their ``scene_toml``
-    matched against the scene file's fidelities (resolved: the tip zone, 9 × 9 points, × 100
+    matched against the scene file's fidelities (resolved: the tip zone, 11 × 11 points, × 100
     penalty), the file as written, or neither (the test fixture's tiny mesh: the file is shown and
     the sentence says so). Broken once: the fidelity looked up on C1.nc, absent here."""
     import xarray as xr
@@ -231,7 +231,7 @@ def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path
         text = " ".join(str(b[1]) for b in sec.blocks if b[0] == "p")
         table = " ".join(str(c) for b in sec.blocks if b[0] == "table" for row in b[1].rows for c in row)
         if want == "resolved":
-            assert "--fidelity resolved" in text and "2 mm tip zone in 4" in table and "9 × 9" in table
+            assert "--fidelity resolved" in text and "2 mm tip zone in 4" in table and "11 × 11" in table
             assert "2.24e+11" in table
         else:
             assert "tip zone" not in table and "2.24e+09" in table and "5 × 5" in table
