@@ -336,10 +336,11 @@ class DEAProblem:
     def _factor_error(self) -> str:
         """MUMPS's own error code after a failed linear solve (" (MUMPS INFOG(1) = -9, INFOG(2) =
         ...)"), or "" for another package or when MUMPS reports none."""
-        if self.factor_package() != "mumps":
+        pc = self.snes.getKSP().getPC()
+        if pc.getFactorSolverType() != "mumps":
             return ""
         try:
-            factor = self.snes.getKSP().getPC().getFactorMatrix()
+            factor = pc.getFactorMatrix()
             info1, info2 = factor.getMumpsInfog(1), factor.getMumpsInfog(2)
         except PETSc.Error:
             return ""

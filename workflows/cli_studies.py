@@ -79,12 +79,10 @@ def register(sub) -> None:
     p = sub.add_parser("stability", help="stiff and extreme cases, each a row: converged or why not "
                                          "(run under mpirun -n N; resumes)")
     p.add_argument("--cases", default="", help="comma-separated case names (default: all)")
-    add_scene_args(p, scene=False, setup=False, fidelity=False,   # its cases are of several scenes
+    # its cases are of several scenes: --fidelity applies to each case whose scene defines it
+    # (workflows/stability.py); free_bending's pull-in runs as written and its row says so
+    add_scene_args(p, scene=False, setup=False,
                    set_help="override one scene key in every case (validated like the file); repeatable")
-    p.add_argument("--fidelity", default=None, metavar="NAME",
-                   help="a named fidelity of coin_pull ([fidelities.NAME]; resolved: the resolved contact patch), "
-                        "applied before --set to every case whose scene defines it (the free pull-in's "
-                        "free_bending runs as written, and its row says so); default: the files as written")
     p.add_argument("--protocol", default="quick", choices=("quick", "full"),
                    help="quick: 1 s ramp with base step 0.01 s; full: the scene's steps (default quick)")
     _common(p)

@@ -271,14 +271,8 @@ def check_fem(config: ControlConfig) -> dict:
             log.info("%s: the target's reach is not checked (no %s to read it from)", spec.name, path)
         else:
             reach = float(np.min(load_setup(path).x))
-            try:
-                task.refuse_beyond(spec.name, reach, f"its FEM dataset {path} takes the coin to {1e3 * reach:.4f} "
-                                   "mm at most (0 to 400 V)")
-            except InputError as err:
-                if config.unreachable != "report":
-                    raise
-                log.warning("%s is left out, reported as unreachable: %s", spec.name, err)
-                unreachable[spec.name] = str(err)
+            _judge_reach(config, spec, unreachable, task.refuse_beyond, spec.name, reach,
+                         f"its FEM dataset {path} takes the coin to {1e3 * reach:.4f} mm at most (0 to 400 V)")
     if unreachable and len(unreachable) == len(config.plants):
         raise InputError("no plant can reach the task: " + "; ".join(unreachable.values()))
     return unreachable
@@ -394,16 +388,21 @@ def surrogates_beyond_reach(config: ControlConfig, bench) -> dict:
     rows; "refuse" raises on the first (an FEM plant's reach is checked by :func:`check_fem`)."""
     unreachable = {}
     for spec in config.plants:
-        if spec.kind != "surrogate":
-            continue
-        try:
-            bench.task.check_reach(spec.name, bench.plant(spec))
-        except InputError as err:
-            if config.unreachable != "report":
-                raise
-            log.warning("%s is left out, reported as unreachable: %s", spec.name, err)
-            unreachable[spec.name] = str(err)
+        if spec.kind == "surrogate":
+            _judge_reach(config, spec, unreachable, bench.task.check_reach, spec.name, bench.plant(spec))
     return unreachable
+
+
+def _judge_reach(config: ControlConfig, spec, unreachable: dict, refuse, *args) -> None:
+    """Call the task's reach check ``refuse(*args)``; beyond reach, raise ("refuse") or note
+    ``spec`` in ``unreachable`` with the message ("report")."""
+    try:
+        refuse(*args)
+    except InputError as err:
+        if config.unreachable != "report":
+            raise
+        log.warning("%s is left out, reported as unreachable: %s", spec.name, err)
+        unreachable[spec.name] = str(err)
 
 
 def unreachable_row(config: ControlConfig, spec, policy: str, noise: float, why: str) -> dict:

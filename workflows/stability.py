@@ -114,15 +114,16 @@ def stability_cases(protocol: str = "quick", overrides=(), names=None, fidelity:
     if unknown:
         raise InputError(f"--cases {unknown[0]!r}: unknown case; allowed: {', '.join(known)}")
     chosen = [s for s in specs if not names or s.name in names]
+    fids = {scene: fidelity_of_case(scene, fidelity) for scene in {s.scene for s in chosen}}
     return [Case(s.name, s.scene, BASE_SETUP if s.scene == BASE_SCENE else None,
-                 (*fidelity_of_case(s.scene, fidelity), *overrides, *study, *s.overrides), _described(s, fidelity),
+                 (*fids[s.scene], *overrides, *study, *s.overrides), _described(s, fidelity, fids[s.scene]),
                  {"expected": s.expected, "protocol": protocol,
                   "voltage_max_V": PULL_IN_V if s.expected == INSTABILITY else base.load.voltage_max_V})
             for s in chosen]
 
 
-def _described(spec: Spec, fidelity: str | None) -> str:
-    if fidelity and not fidelity_of_case(spec.scene, fidelity):
+def _described(spec: Spec, fidelity: str | None, applied: tuple[str, ...]) -> str:
+    if fidelity and not applied:
         return f"{spec.description} ({spec.scene} as written: it defines no fidelity {fidelity!r})"
     return spec.description
 
