@@ -27,6 +27,7 @@ def cmd_control(args) -> int:
         mpc_oracle=args.mpc_oracle, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
         mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, unreachable=args.unreachable,
         infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
+        **({} if args.mpc_recentre is None else {"mpc_recentre": args.mpc_recentre}),
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
         save_fem_runs=None if args.save_fem_runs is None else Path(args.save_fem_runs))
@@ -103,6 +104,10 @@ def register(sub) -> None:
                    help="under noise the MPC stops this many stds of its position estimate short of the target and "
                         "holds V until the observations have averaged the estimate down, then goes on (default 0: "
                         "off; e.g. 2)")
+    p.add_argument("--mpc-recentre", type=float, default=None,
+                   help="while holding, the MPC steps V by --mpc-creep toward the target when its estimate stands "
+                        "short of it by more than this many of its stds and 0.3 x the tolerance, at most every 20 "
+                        "steps (default 1.5; 0: off)")
     p.add_argument("--mpc-no-infer", action="store_true",
                    help="the MPC plans with the coin-family prior's median and infers nothing (needs --phi-prior "
                         "coins): the fixed prior that the online inference is compared with")

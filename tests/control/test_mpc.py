@@ -444,3 +444,27 @@ def test_the_rate_limit_caps_every_step_and_the_plan_still_reaches_and_holds(cou
         assert episode.row["reached"] and episode.row["settled"], (rate, episode.row)
     assert largest[0.0] == pytest.approx(5.0)
     assert largest[0.4] <= 0.4 + 1e-9
+
+
+def test_the_approach_taper_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
+    """``approach_m`` slows the push near the target, and on a coin whose travel grows with the
+    push rate (the fixture surrogate: 0.648 mm at 0.4 V per step, 0.461 mm at 0.1) the slower
+    push costs the last µm: a target 3 µm inside the 0.4 V reach (−0.645 mm) was never reached
+    (the coin stopped at −0.634 mm at 400 V, 0.9 µm outside). The policy therefore skips the
+    taper while its model, pushed at the full rate to 400 V, stops within the tolerance past
+    the target; well inside the reach (−0.5 mm) it tapers as before (reached below 400 V).
+    Broken once: with the reach check off (the taper always applied) the −0.645 mm episode
+    failed exactly so."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    config = MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=0.4, approach_m=1e-4, creep_V=0.1)
+    rows = {}
+    for target in (-0.645e-3, -0.5e-3):
+        env = CoinPushEnv(plant, target_m=target, terminate_on_success=False, max_steps=3000)
+        rows[target] = run_episode(env, MPCPolicy(coulomb, config, phi=plant.truth), seed=0, step_limit=2800,
+                                   hold_steps=100).row
+    assert rows[-0.645e-3]["settled"], rows[-0.645e-3]
+    assert rows[-0.5e-3]["settled"] and rows[-0.5e-3]["final_V_V"] < 350, rows[-0.5e-3]

@@ -171,7 +171,8 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     instead and the coin is back on the third target within a few steps. Without the rule it
     waited 64 steps for the second target (measured). Broken once (the creep replaced by
     ``dV = 0.0`` in MPCPolicy.act): it failed with "{False: [59, 64, 7], True: [59, 64, 7]},
-    assert 64 < 20"."""
+    assert 64 < 20". Re-centring is off here: it moves the coin during the first hold, and
+    from there both reach the second target in 7 steps (measured), so it would hide the rule."""
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
@@ -183,7 +184,7 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     steps = {}
     for unstall in (False, True):
         env = CoinPushEnv(plant, target_m=setpoints[0], terminate_on_success=False, max_steps=4000)
-        policy = MPCPolicy(trained("f-memory").model, MPCConfig(infer=False, unstall=unstall), phi=phi)
+        policy = MPCPolicy(trained("f-memory").model, MPCConfig(infer=False, unstall=unstall, recentre_stds=0.0), phi=phi)
         row = run_episode(env, policy, seed=0, step_limit=1200, hold_steps=50, setpoints_m=setpoints).row
         assert row["setpoints_reached"] == 3 and row["setpoints_settled"] == 3, row
         steps[unstall] = [int(s) for s in row["iterations_per_setpoint"].split(";")]
