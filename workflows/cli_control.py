@@ -105,9 +105,9 @@ def register(sub) -> None:
                         "holds V until the observations have averaged the estimate down, then goes on (default 0: "
                         "off; e.g. 2)")
     p.add_argument("--mpc-recentre", type=float, default=None,
-                   help="while holding, the MPC steps V by --mpc-creep toward the target when its estimate stands "
-                        "short of it by more than this many of its stds and 0.3 x the tolerance, at most every 20 "
-                        "steps (default 1.5; 0: off)")
+                   help="while holding, the MPC steps V by --mpc-creep toward the target at every step its "
+                        "estimate stands off the target by more than this many of its stds and 0.3 x the tolerance "
+                        "(default 1.5; 0: off)")
     p.add_argument("--mpc-no-infer", action="store_true",
                    help="the MPC plans with the coin-family prior's median and infers nothing (needs --phi-prior "
                         "coins): the fixed prior that the online inference is compared with")
