@@ -40,8 +40,7 @@ of the window, or just outside it, while the estimate says it is inside; the hys
 (``hold_stds``) then keeps the hold. As the held observations average down, the policy
 re-centres: while the estimate stands off the target, on either side, by more than
 ``recentre_stds`` of its own stds and more than ``recentre_band`` × tolerance, it steps V by
-``creep_V`` toward the target at every step (``recentre_every`` = 1) until it no longer
-does. The steps come in bursts, not spaced out: on the FEM a 0.1 V step every 20 steps
+``creep_V`` toward the target at every step until it no longer does. The steps come in bursts, not spaced out: on the FEM a 0.1 V step every 20 steps
 did not move a held coin (fem:C7 stood 21.5 µm short while V crept from 394 to 400 V),
 the same steps at every step did (it came to 9.95 µm short and settled). Measured on fem:C3
 at resolved v2 without it: the push-push-pull-back task held 10.3 µm short of −0.5 mm from
@@ -141,10 +140,10 @@ class MPCConfig:
     hold_band : float
         Start holding V once the estimate is within this fraction of the tolerance of the
         target (0: never hold; the MPC alone decides).
-    recentre_stds, recentre_band, recentre_every :
+    recentre_stds, recentre_band :
         Re-centring during a hold (module docstring; ``recentre_stds`` 0: off): a ``creep_V``
-        step toward the target while the estimate is off it by more than this many stds and
-        this fraction of the tolerance, at most once every ``recentre_every`` steps.
+        step toward the target at every step the estimate is off it by more than this many
+        stds and this fraction of the tolerance.
     hold_stds : float
         Go on holding while the estimate stays within the band plus this many of its own
         standard deviations (a hysteresis: noise alone does not end the hold, an estimate
@@ -200,7 +199,6 @@ class MPCConfig:
     hold_stds: float = 4.5
     recentre_stds: float = 1.5
     recentre_band: float = 0.3
-    recentre_every: int = 1
     creep_V: float = 0.5
     approach_m: float = 0.0
     max_rate_V: float = 0.0
@@ -218,9 +216,8 @@ class MPCConfig:
             raise InputError(f"MPC engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
         if not 0 <= self.hold_band <= 1:
             raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
-        for name in ("hold_stds", "recentre_stds", "recentre_band", "recentre_every", "creep_V", "approach_m",
-                     "max_rate_V", "standoff_stds", "max_wait", "crlb_every",
-                     "bias_process_fraction"):
+        for name in ("hold_stds", "recentre_stds", "recentre_band", "creep_V", "approach_m", "max_rate_V",
+                     "standoff_stds", "max_wait", "crlb_every", "bias_process_fraction"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InputError(f"MPC {name} = {value!r}: must be a finite number >= 0")
@@ -294,7 +291,6 @@ class MPCPolicy(Policy):
         self.plan = None
         self.holding = False
         self.side, self.waited = math.copysign(1.0, 0.0 - self.target_m), 0   # the coin starts at x = 0
-        self.since_nudge = 0
         self.previous = None          # (x, u, V) estimate of the previous step
         self.memory = None            # f_a's memory entries (scaled) after that step; None: at rest
         self.solve_ms, self.inference_ms = [], []
@@ -365,17 +361,18 @@ class MPCPolicy(Policy):
 
     def _recentre(self, x: float) -> float:
         """ΔV during a hold: one ``creep_V`` toward the target when the estimate ``x`` stands
-        off it by more than ``recentre_stds`` stds and ``recentre_band`` × tolerance (at
-        most once every ``recentre_every`` steps), else 0 (module docstring)."""
+        off it by more than ``recentre_stds`` stds and ``recentre_band`` × tolerance, else 0
+        (module docstring)."""
         cfg = self.config
-        self.since_nudge += 1
-        if cfg.recentre_stds <= 0 or self.since_nudge < cfg.recentre_every:
-            return 0.0
         off = x - self.target_m
-        if abs(off) <= max(cfg.recentre_band * self.tolerance_m, cfg.recentre_stds * self.estimate_std_m):
+        if cfg.recentre_stds <= 0 or abs(off) <= max(cfg.recentre_band * self.tolerance_m,
+                                                     cfg.recentre_stds * self.estimate_std_m):
             return 0.0
-        self.since_nudge = 0
         return math.copysign(min(cfg.creep_V, self.dv_max_V), off)
+
+    def _roll(self, xi0, nu):
+        """f_a's rollout ξ (B, T+1, n) from ξ0 under ν: the compiled one, else :func:`mpc.rollout`."""
+        return self.dynamics.rollout(xi0, nu) if self.native else mpc.rollout(self.dynamics, xi0, nu)
 
     def _at_reach(self, xi0, x: float, V: float) -> bool:
         """Whether the target lies at the edge of the coin's reach: pushed at the full rate up to
@@ -388,8 +385,7 @@ class MPCPolicy(Policy):
         steps = math.ceil(max(self.v_max_V - V, 0.0) / self.dv_max_V)
         if steps == 0:
             return True
-        roll = self.dynamics.rollout if self.native else functools.partial(mpc.rollout, self.dynamics)
-        end = float(roll(xi0, torch.ones(1, steps, 1, dtype=torch.float64))[0, -1, 0]) * X_UNIT_M
+        end = float(self._roll(xi0, torch.ones(1, steps, 1, dtype=torch.float64))[0, -1, 0]) * X_UNIT_M
         reach = x + (1.0 + self.gain_error) * (end - x)
         return reach > self.target_m - self.tolerance_m
 
@@ -444,7 +440,7 @@ class MPCPolicy(Policy):
         if target != self.target_m:          # a new setpoint: plan afresh
             self.target_m, self.plan, self.holding = target, None, False
             self.side = math.copysign(1.0, (self.previous[0] if self.previous else x) - target)
-            self.waited = self.since_nudge = 0
+            self.waited = 0
         if cfg.infer:
             start = time.perf_counter()
             self.inference.observe(x, V)
@@ -480,10 +476,9 @@ class MPCPolicy(Policy):
         # down is the fastest way there; while even that does not bring the coin within the
         # tolerance inside the horizon it is applied without solving (module docstring)
         fastest = ramp if x > model_target else -ramp
-        roll = self.dynamics.rollout if self.native else functools.partial(mpc.rollout, self.dynamics)
         out_of_reach = stalled = False
         if abs(x - model_target) > tolerance:
-            reach = roll(xi0, fastest)[0, :, 0] * X_UNIT_M
+            reach = self._roll(xi0, fastest)[0, :, 0] * X_UNIT_M
             out_of_reach = bool((reach - model_target).abs().min() > tolerance and
                                 bool(((reach - model_target) * (x - model_target) > 0).all()))
         if out_of_reach:

@@ -54,6 +54,7 @@ def test_bad_arguments_exit_2_with_one_line_naming_them_before_any_work(base, tm
     (["--phi-prior", "flat"], "--phi-prior 'flat'"),
     (["--mpc-max-rate", "nan"], "--mpc-max-rate nan"),
     (["--mpc-creep", "0"], "--mpc-creep 0"),
+    (["--mpc-recentre", "-1"], "--mpc-recentre -1"),
 ])
 def test_bad_mpc_arguments_exit_2(base, tmp_path, capsys, fs1_dir, change, named):
     argv = [*base, "--policy", "mpc", "--mpc-model", str(fs1_dir)] + [c.replace("{tmp}", str(tmp_path)) for c in change]

@@ -368,7 +368,8 @@ def test_with_a_prior_the_plan_uses_only_what_the_data_identify(coulomb, sweep):
 
 @pytest.mark.parametrize("field, value", [("creep_V", -0.5), ("approach_m", float("nan")), ("standoff_stds", -1.0),
                                           ("identified_crlb", 0.0), ("hold_band", 1.5), ("max_wait", -1),
-                                          ("max_rate_V", -0.4)])
+                                          ("max_rate_V", -0.4), ("recentre_stds", -1.5),
+                                          ("recentre_band", float("nan"))])
 def test_bad_mpc_settings_are_refused_naming_the_field(field, value):
     from deapull.control.mpc_policy import MPCConfig
     with pytest.raises(InputError, match=field.replace("_", "[ _]")):
