@@ -146,10 +146,11 @@ def cmd_dagger(args) -> int:
         out=Path(args.out), episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, hold_steps=args.hold,
         target_m=1e-3 * args.target_mm, data=Path(args.data), phi_prior=args.phi_prior,
         mpc_approach_m=1e-3 * args.mpc_approach_mm, mpc_standoff=args.mpc_standoff,
-        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, scene=args.scene,
-        overrides=overrides_of(args), progress=False)
+        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, mpc_no_infer=args.mpc_no_infer,
+        scene=args.scene, overrides=overrides_of(args), progress=False)
     config = dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
                                  val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
+                                 kind=args.model_kind,
                                  model=None if args.mpc_model is None else Path(args.mpc_model), seed=args.seed)
     rows = dagger.run(config)
     print(dagger.summary_table(rows))
@@ -176,7 +177,12 @@ def register_dagger(sub) -> None:
                    help="the MPC's approach limit (mm; default 0.1, as make control-fem; see deapull control --help)")
     p.add_argument("--mpc-creep", type=float, default=0.1,
                    help="the MPC's smallest |dV| per step (V; default 0.1, as make control-fem)")
+    p.add_argument("--model-kind", default=None,
+                   help="f_a's kind, retrained every round: f-coulomb or f-memory (default: --mpc-model's kind, "
+                        "else f-coulomb; f-memory needs --mpc-no-infer)")
     p.add_argument("--phi-prior", default="coins", help="the MPC's inference prior: none or coins (default)")
+    p.add_argument("--mpc-no-infer", action="store_true",
+                   help="plan with the coin prior's median, no online inference (needed by an f-memory f_a)")
     p.add_argument("--mpc-standoff", type=float, default=0.0, help="the MPC's stand-off (stds; default 0)")
     p.add_argument("--max-steps", type=int, default=3000, help="steps before an episode counts as failed (3000)")
     p.add_argument("--hold", type=int, default=100, help="steps held after the first success (100)")

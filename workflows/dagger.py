@@ -21,6 +21,7 @@ runs, reached / settled / overshoot / hold error of the closed loop).
 """
 from __future__ import annotations
 
+import json
 import logging
 import math
 from dataclasses import dataclass, field, replace
@@ -49,6 +50,9 @@ class DaggerConfig:
 
     ``control`` is the closed-loop experiment of each round (:class:`ControlConfig`, MPC on FEM
     plants); its ``mpc_model``, ``out``, ``save_fem_runs`` and ``run_tag`` are set per round.
+    ``kind`` is f_a's model kind, retrained every round: None means the kind of ``model`` when
+    one is given, else f-coulomb. A kind that cannot infer φ online (f-memory) plans with the
+    prior's median: it needs ``control.mpc_no_infer``.
     """
 
     control: object
@@ -58,14 +62,36 @@ class DaggerConfig:
     out: Path
     rounds: int = 3
     epochs: int = 300
-    kind: str = "f-coulomb"
+    kind: str | None = None
     model: Path | None = None
     seed: int = 0
     extra: list = field(default_factory=list)
 
 
+def model_kind(config: DaggerConfig) -> str:
+    """f_a's kind: ``config.kind``, else the given model's, else f-coulomb."""
+    if config.kind is not None:
+        return config.kind
+    if config.model is not None and (Path(config.model) / "model.json").is_file():
+        return json.loads((Path(config.model) / "model.json").read_text()).get("kind", "f-coulomb")
+    return "f-coulomb"
+
+
 def check(config: DaggerConfig) -> None:
     """Refuse bad settings before any training or FEM step."""
+    from deapull.surrogate.models import registry
+    kind = model_kind(config)
+    cls = registry.KINDS.get(kind)
+    if cls is None or "plan" not in cls.capabilities:
+        allowed = ", ".join(k for k, c in registry.KINDS.items() if "plan" in c.capabilities)
+        raise InputError(f"--model-kind {kind!r}: the MPC cannot plan with it; allowed: {allowed}")
+    if config.kind is not None and config.model is not None and model_kind(replace(config, kind=None)) != kind:
+        raise InputError(f"--model-kind {kind!r} but --mpc-model {str(config.model)!r} is "
+                         f"{model_kind(replace(config, kind=None))!r}: every round retrains the same kind")
+    if "infer" not in cls.capabilities and not (config.control.mpc_no_infer or config.control.mpc_oracle):
+        source = "--model-kind" if config.kind is not None else f"the kind of --mpc-model {str(config.model)!r}"
+        raise InputError(f"f_a's kind {kind!r} ({source}) cannot infer the coin online: add --mpc-no-infer (plan "
+                         f"with the prior's median)")
     if int(config.rounds) != config.rounds or config.rounds < 1:
         raise InputError(f"--rounds {config.rounds!r}: must be an integer >= 1")
     if int(config.epochs) != config.epochs or config.epochs < 1:
@@ -129,7 +155,7 @@ def run(config: DaggerConfig) -> list[dict]:
     runs_dir = out / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     aggregated: list[Path] = list(config.extra)
-    training = TrainConfig(kind=config.kind, epochs=config.epochs, seed=config.seed)
+    training = TrainConfig(kind=model_kind(config), epochs=config.epochs, seed=config.seed)
     trains = config.model is None or config.rounds > 1
     ramps = load_sweep(config.data, list(dict.fromkeys([*config.train, config.val]))) if trains else {}
     if config.model is not None:

@@ -46,6 +46,8 @@ def test_aggregation_adds_the_closed_loop_runs_and_lowers_the_model_error_on_a_n
     (["--train", "C3,C9"], "C9.nc not found"),
     (["--mpc-model", "{tmp}/nowhere"], "--mpc-model"),
     (["--mpc-standoff", "-1"], "--mpc-standoff"),
+    (["--model-kind", "f-memory"], "--mpc-no-infer"),
+    (["--model-kind", "nn"], "cannot plan"),
 ])
 def test_bad_dagger_arguments_exit_2_naming_them_before_any_work(tmp_path, sweep_dir, capsys, change, named):
     from deapull.workflows.cli import main
@@ -56,3 +58,30 @@ def test_bad_dagger_arguments_exit_2_naming_them_before_any_work(tmp_path, sweep
     assert main(argv) == 2
     assert named in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_aggregation_retrains_a_memory_f_a_as_a_memory_model(tmp_path, sweep_dir):
+    """f_a with the tip's memory (f-memory, planning with the prior's median): every round
+    retrains the same kind on the ramps and the closed-loop runs. Broken once: the kind taken
+    from ``TrainConfig``'s default (f-coulomb) instead of the given model's: round 1's model
+    was f-coulomb."""
+    import json
+
+    from deapull.surrogate import store
+    from deapull.surrogate.data import load_sweep
+    from deapull.surrogate.train import TrainConfig, train
+    from deapull.workflows import control, dagger
+    ramps = load_sweep(sweep_dir, ["C3", "C4", "C5"])
+    first = train(TrainConfig(kind="f-memory", epochs=40, seed=0), [ramps["C3"], ramps["C4"]], ramps["C5"])
+    store.save(first.model, tmp_path / "fa_mem", first.summary(), first.history)
+    settings = control.ControlConfig(policies=["mpc"], plants=control.parse_plants("fem:C1"), noises=[1e-5],
+                                     out=tmp_path, episodes=1, max_steps=120, hold_steps=20, target_m=-0.4e-3,
+                                     data=Path(sweep_dir), phi_prior="coins", mpc_no_infer=True,
+                                     overrides=list(OVERRIDES), progress=False)
+    config = dagger.DaggerConfig(control=settings, data=Path(sweep_dir), train=["C3", "C4"], val="C5",
+                                 out=tmp_path / "dagger", rounds=2, epochs=40, model=tmp_path / "fa_mem")
+    rows = dagger.run(config)
+    assert rows[0]["new_runs"] == 1
+    assert all(r["train_runs"] == 3 for r in rows[1:])   # round 1 (if the loop went on): 2 ramps + 1 run
+    retrained = tmp_path / "dagger" / "models" / "r1" / "model.json"
+    assert json.loads(retrained.read_text())["kind"] == "f-memory"
