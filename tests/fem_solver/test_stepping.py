@@ -285,6 +285,21 @@ def test_a_triangle_turns_at_its_peak_without_cut_backs(tmp_path):
     assert x[-1] > after.min() + 1e-5                              # then pulled back toward the clamp
 
 
+def test_a_line_search_that_runs_out_of_iterations_gets_a_longer_try_not_a_cut_back(tmp_path):
+    """The triangle above with Newton capped at 10 iterations: around the peak the line search
+    needs more, and a cut-back does not lower that (the reversal is as sharp at every step
+    size). The longer try (3 × the cap, ``LONG_NEWTON_FACTOR``) takes every step whole: no
+    cut-back, 20 s. Broken once (factor 1, so the last try is the failed one repeated): 139
+    cut-backs and 88 s. At resolved v2 the C5 triangle's peak failed the same way at the
+    shipped cap of 40 (84 iterations needed) and the case was lost."""
+    stepper = _stepper(tmp_path, "load.protocol='triangle'", "load.ramp_time_s=0.25", "load.end_time_s=0.375",
+                       "solver.newton_max_it=10")
+    records = stepper.run()
+    assert sum(r.cutbacks for r in records) == 0
+    assert max(r.newton_iterations for r in records) > 10          # some step needed the longer try
+    assert records[-1].t == pytest.approx(0.375)
+
+
 def test_a_step_that_jumps_branch_is_not_recorded(tmp_path, monkeypatch):
     """A converged solve whose free end moved 5 mm in one step (Newton landed on another
     equilibrium, as at the C1 triangle's peak) is refused and the step taken again; the record
