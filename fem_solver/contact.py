@@ -84,12 +84,29 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
     )
 
 
+def _rim_offsets(rho, y, top_y: float, radius: float, edge_radius: float):
+    """(q_ρ, q_y) from the fillet's centre line, and whether the point lies beyond both (the rim)."""
+    q_r, q_y = rho - (radius - edge_radius), y - (top_y - edge_radius)
+    return q_r, q_y, (q_r > 0) & (q_y > 0)
+
+
 def rounded_cylinder_distance(rho, y, top_y: float, radius: float, edge_radius: float):
     """Signed distance (m, negative inside) of points at distance ``rho`` from the axis and
     height ``y`` to the upright cylinder with a rounded top rim — NumPy twin of the UFL
     expression in :func:`contact_terms` (inside the body only the
     nearer of the top face and the side wall counts, as there)."""
-    q_r, q_y = rho - (radius - edge_radius), y - (top_y - edge_radius)
-    corner = (q_r > 0) & (q_y > 0)
+    q_r, q_y, corner = _rim_offsets(rho, y, top_y, radius, edge_radius)
     flat = np.where(q_y > q_r, q_y, q_r)
     return np.where(corner, np.hypot(q_r, q_y), flat) - edge_radius
+
+
+def rounded_cylinder_normal(rho, y, top_y: float, radius: float, edge_radius: float):
+    """Outward normal (n_ρ, n_y) of that cylinder at the same points, and whether each lies on the
+    rim's fillet — NumPy twin of ``n`` in :func:`contact_terms` (e_y on the top face, e_ρ on the
+    side wall)."""
+    q_r, q_y, corner = _rim_offsets(rho, y, top_y, radius, edge_radius)
+    q = np.hypot(q_r, q_y)
+    top = q_y > q_r
+    n_r = np.where(corner, q_r / np.where(corner, q, 1.0), np.where(top, 0.0, 1.0))
+    n_y = np.where(corner, q_y / np.where(corner, q, 1.0), np.where(top, 1.0, 0.0))
+    return n_r, n_y, corner

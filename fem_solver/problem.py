@@ -471,6 +471,11 @@ class DEAProblem:
         return -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
                                                   self.obstacle.edge_radius_m)
 
+    def contact_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """This rank's quadrature points of the DEA–obstacle contact integral: their current
+        positions (n, 3) and their penetrations into the obstacle (n,; m, > 0 where they touch)."""
+        return self._positions_at("contact"), self._obstacle_depth_at_points()
+
     def max_penetration_at_points(self) -> float:
         """Largest penetration into the obstacle (m) at the contact integral's own
         quadrature points on the DEA's underside — the only places where the penalty and the

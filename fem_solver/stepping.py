@@ -415,34 +415,32 @@ class Stepper:
         slowly at every step size (resolved v2, C5 triangle's peak: 84 iterations), so a cut-back
         does not help, while more iterations do.
         """
-        self.p.predict(ratio)
-        ok, reason, its, cits, coin, forces = self._coupled_solve(V, step)
-        if ok:
-            ok, reason = self._continuous(tip_before, reason)
+        def attempt(first: bool):
+            if not first:
+                self.p.restore()
+            self.p.predict(ratio)
+            ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step)
+            if ok:
+                ok, reason = self._continuous(tip_before, reason)
+            return ok, reason, k_its, k_cits, coin, forces
+
+        ok, reason, its, cits, coin, forces = attempt(first=True)
         if ok:
             return ok, reason, its, cits, coin, forces
         switched = self.line_search != LINE_SEARCH_RETRY
         if switched:
             self._info("t = %.6g s, dt = %.3g s: %s with full Newton steps; retrying with a line search",
                        self.t, step, reason)
-            self.p.restore()
-            self.p.predict(ratio)
             self._set_line_search(LINE_SEARCH_RETRY)
-            ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step)
+            ok, reason, k_its, k_cits, coin, forces = attempt(first=False)
             its, cits = its + k_its, cits + k_cits
-            if ok:
-                ok, reason = self._continuous(tip_before, reason)
         if not ok and reason == "DIVERGED_MAX_IT":
             long_it = LONG_NEWTON_FACTOR * self.scene.solver.newton_max_it
             self._info("t = %.6g s, dt = %.3g s: %s with the line search; once more with %d iterations",
                        self.t, step, reason, long_it)
-            self.p.restore()
-            self.p.predict(ratio)
             with self.p.newton_max_it(long_it):
-                ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step)
+                ok, reason, k_its, k_cits, coin, forces = attempt(first=False)
             its, cits = its + k_its, cits + k_cits
-            if ok:
-                ok, reason = self._continuous(tip_before, reason)
         if not ok and switched:
             self._set_line_search("basic")
         return ok, reason, its, cits, coin, forces

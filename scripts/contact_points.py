@@ -35,6 +35,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
 
     from deapull import scene as scenes
+    from deapull.fem_solver import contact
     from deapull.fem_solver.simulation import Simulation
     from deapull.fem_solver.stepping import as_arrays
 
@@ -44,8 +45,9 @@ def main(argv=None) -> int:
     points, depths, coin_x = [], [], []
 
     def on_step(i, t):
-        points.append(problem._positions_at("contact").copy())
-        depths.append(problem._obstacle_depth_at_points().copy())
+        x, depth = problem.contact_points()
+        points.append(x.copy())
+        depths.append(depth.copy())
         coin_x.append(float(problem.X.value))
 
     records = sim.stepper(problem, progress=False, on_step=on_step).run()
@@ -66,10 +68,8 @@ def main(argv=None) -> int:
         v = (P[i] - P[i - 1])[on] / (a["t"][i] - a["t"][i - 1])
         rx, rz = x[:, 0] - lay.obstacle_center_x_m - XC[i], x[:, 2]
         rho = np.hypot(rx, rz)
-        q_r, q_y = rho - (R - er), x[:, 1] - (top - er)
-        rim = (q_r > 0) & (q_y > 0)
-        n_x = np.where(rim, q_r / np.hypot(q_r, q_y) * rx / rho, np.where(q_y > q_r, 0.0, rx / rho))
-        n_y = np.where(rim, q_y / np.hypot(q_r, q_y), np.where(q_y > q_r, 1.0, 0.0))
+        n_r, n_y, rim = contact.rounded_cylinder_normal(rho, x[:, 1], top, R, er)
+        n_x = n_r * rx / rho
         print(f"{a['V'][i]:5.0f} {on.sum():3d} {1e3 * np.sum(w * v[:, 0]) / w.sum():7.3f} {1e3 * a['u'][i]:7.3f} "
               f"{1e3 * np.mean(abs(v[:, 2])):7.3f} {abs(a['Fx'][i]) / (mu_t * abs(a['Fy'][i])):6.3f} "
               f"{rim.mean():6.2f} {-np.sum(w * n_x) / np.sum(w * n_y):8.3f}")

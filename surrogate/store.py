@@ -60,6 +60,18 @@ def save(model: Surrogate, out_dir: str | Path, training: dict | None = None, hi
     return out
 
 
+def kind_of(model_dir: str | Path) -> str | None:
+    """The model kind a saved folder holds (``model.json``'s ``kind``), read without torch or the
+    weights; None when the folder has no ``model.json``."""
+    path = Path(model_dir) / META
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text()).get("kind")
+    except json.JSONDecodeError as err:
+        raise ModelFileError(f"{path}: not valid JSON ({err})") from err
+
+
 def load(model_dir: str | Path) -> tuple[Surrogate, dict]:
     """Rebuild a saved model (on the CPU, in eval mode) and return it with its JSON."""
     folder = Path(model_dir)

@@ -237,10 +237,9 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
 def _require_inference(folder: Path) -> None:
     """The MPC infers φ online with its own f_a: refuse a kind that cannot (f-memory) before any
     model is loaded, naming the options that plan with a given φ instead."""
-    import json
-
+    from deapull.surrogate import store
     from deapull.surrogate.models import registry
-    kind = json.loads((folder / "model.json").read_text()).get("kind")
+    kind = store.kind_of(folder)
     cls = registry.KINDS.get(kind)
     if cls is not None and "infer" not in cls.capabilities:
         raise InputError(f"--mpc-model {str(folder)!r}: its kind {kind!r} cannot infer φ online (capability "

@@ -21,7 +21,6 @@ runs, reached / settled / overshoot / hold error of the closed loop).
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 from dataclasses import dataclass, field, replace
@@ -70,11 +69,8 @@ class DaggerConfig:
 
 def model_kind(config: DaggerConfig) -> str:
     """f_a's kind: ``config.kind``, else the given model's, else f-coulomb."""
-    if config.kind is not None:
-        return config.kind
-    if config.model is not None and (Path(config.model) / "model.json").is_file():
-        return json.loads((Path(config.model) / "model.json").read_text()).get("kind", "f-coulomb")
-    return "f-coulomb"
+    given = store.kind_of(config.model) if config.model is not None else None
+    return config.kind or given or "f-coulomb"
 
 
 def check(config: DaggerConfig) -> None:
@@ -85,9 +81,10 @@ def check(config: DaggerConfig) -> None:
     if cls is None or "plan" not in cls.capabilities:
         allowed = ", ".join(k for k, c in registry.KINDS.items() if "plan" in c.capabilities)
         raise InputError(f"--model-kind {kind!r}: the MPC cannot plan with it; allowed: {allowed}")
-    if config.kind is not None and config.model is not None and model_kind(replace(config, kind=None)) != kind:
-        raise InputError(f"--model-kind {kind!r} but --mpc-model {str(config.model)!r} is "
-                         f"{model_kind(replace(config, kind=None))!r}: every round retrains the same kind")
+    given = store.kind_of(config.model) if config.model is not None else None
+    if given is not None and given != kind:
+        raise InputError(f"--model-kind {kind!r} but --mpc-model {str(config.model)!r} is {given!r}: every round "
+                         f"retrains the same kind")
     if "infer" not in cls.capabilities and not (config.control.mpc_no_infer or config.control.mpc_oracle):
         source = "--model-kind" if config.kind is not None else f"the kind of --mpc-model {str(config.model)!r}"
         raise InputError(f"f_a's kind {kind!r} ({source}) cannot infer the coin online: add --mpc-no-infer (plan "

@@ -65,6 +65,28 @@ def test_penetration_measure_uses_the_contact_s_rounded_rim():
     assert d[4] == pytest.approx(-1e-6 / np.sqrt(2), rel=3e-3)               # just inside the fillet
 
 
+def test_the_rim_normal_is_the_gradient_of_the_signed_distance():
+    """``rounded_cylinder_normal`` (the contact's n, used by scripts/contact_points.py) against
+    central differences of the tested distance, on the top face, the side wall and the fillet
+    (away from the kinks between them); only fillet points are flagged as on the rim. Broken
+    once (the fillet's n_y and n_ρ swapped): it failed."""
+    from deapull.fem_solver.contact import rounded_cylinder_distance, rounded_cylinder_normal
+    top, radius, fillet = 1.0e-3, 5e-3, 3e-4
+    c_r, c_y = radius - fillet, top - fillet
+    angles = np.radians([20.0, 60.0])
+    rho = np.array([1e-3, radius + 1e-6, *(c_r + fillet * np.cos(angles))])
+    y = np.array([top - 1e-6, top - 2e-3, *(c_y + fillet * np.sin(angles))])
+    n_r, n_y, rim = rounded_cylinder_normal(rho, y, top, radius, fillet)
+    h = 1e-9
+    g_r = (rounded_cylinder_distance(rho + h, y, top, radius, fillet)
+           - rounded_cylinder_distance(rho - h, y, top, radius, fillet)) / (2 * h)
+    g_y = (rounded_cylinder_distance(rho, y + h, top, radius, fillet)
+           - rounded_cylinder_distance(rho, y - h, top, radius, fillet)) / (2 * h)
+    assert n_r == pytest.approx(g_r, abs=1e-5) and n_y == pytest.approx(g_y, abs=1e-5)
+    assert list(rim) == [False, False, True, True]
+    assert n_r[2:] == pytest.approx(np.cos(angles), abs=1e-5)
+
+
 def test_static_balance_at_placement_checks_the_cone_without_inertia():
     """dt = 0 (the t = 0 record, no step): the balance is the static cone, |Fx| ≤ μ_b N."""
     rest = CoinState()
