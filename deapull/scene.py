@@ -468,6 +468,42 @@ def apply_override(data: dict, assignment: str) -> None:
     _assign(data, path.strip(), _parse_value(text.strip()))
 
 
+def _select_for_protocol(data: dict, overrides) -> list[str]:
+    """The overrides that apply, in order: ``section.key@protocol=value`` (a fidelity's entry for one
+    protocol, ``[fidelities.NAME.PROTOCOL]``) applies only when the scene's load protocol, after the
+    unqualified overrides, is that protocol; it loses its qualifier. Every qualifier and key is
+    checked, applied or not."""
+    chosen, qualified = [], []
+    for assignment in overrides:
+        path = assignment.split("=", 1)[0]
+        if "@" not in path:
+            chosen.append(assignment)
+            continue
+        key, proto = (part.strip() for part in path.split("@", 1))
+        if proto not in protocols.NAMES:
+            raise SceneError(f"--set {assignment!r}: unknown protocol {proto!r} after '@'; allowed: "
+                             f"{', '.join(protocols.NAMES)}")
+        section, _, name = key.partition(".")
+        if section == "load":
+            raise SceneError(f"--set {assignment!r}: a load key cannot depend on the protocol; allowed after '@': "
+                             f"the keys of {', '.join(s for s in SECTIONS if s != 'load')}")
+        if section not in SECTIONS or name not in (known := [f.name for f in dataclasses.fields(SECTIONS[section])]):
+            raise SceneError(f"--set {assignment!r}: unknown key {key!r}; allowed: "
+                             + (f"{section}.{', '.join(known)}" if section in SECTIONS else
+                                f"section.key with section one of {', '.join(SECTIONS)}"))
+        qualified.append((len(chosen), proto, key + "=" + assignment.split("=", 1)[1]))
+    if not qualified:
+        return chosen
+    probe = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    for assignment in chosen:
+        apply_override(probe, assignment)
+    protocol = (probe.get("load") or {}).get("protocol", "ramp")
+    for at, proto, assignment in reversed(qualified):   # in place, so a later --set still wins
+        if proto == protocol:
+            chosen.insert(at, assignment)
+    return chosen
+
+
 def _assign(data: dict, path: str, value) -> None:
     parts = path.split(".")
     if len(parts) == 1:
@@ -499,6 +535,7 @@ def from_dict(raw: dict, setup: str | None = None, overrides=(), source_text: st
             raise SceneError(f"setup = {setup!r}: unknown setup; allowed: {allowed}")
         for key, value in setups[setup].items():
             _assign(data, key, value)
+    overrides = _select_for_protocol(data, overrides)
     for assignment in overrides:
         apply_override(data, assignment)
     explicit = {k.split("=", 1)[0].strip() for k in overrides} | set(setups.get(setup, {}) if setup else ())
@@ -568,7 +605,10 @@ def fidelity_overrides(name_or_path: str | Path, fidelity: str | None) -> tuple[
     A fidelity is a table ``[fidelities.<name>]`` of the scene file, written like a setup's
     (``"mesh.tip_zone_m" = 0.002``): how finely to resolve the same physics (mesh, contact rule,
     penalty, linear solver). None or "" is the file as written. Given as overrides, it is applied
-    before the user's ``--set`` (which win) and is recorded in every case and dataset.
+    before the user's ``--set`` (which win) and is recorded in every case and dataset. A sub-table
+    named after a load protocol (``[fidelities.resolved.release]``) holds the entries that apply
+    only under that protocol (where the contact sits depends on how the run starts); they come as
+    ``section.key@protocol=value``, after the fidelity's other entries.
     """
     if not fidelity:
         return ()
@@ -576,7 +616,13 @@ def fidelity_overrides(name_or_path: str | Path, fidelity: str | None) -> tuple[
     if fidelity not in table:
         allowed = ", ".join(table) if table else "none (this scene defines no fidelities)"
         raise SceneError(f"fidelity = {fidelity!r}: unknown fidelity of scene {str(name_or_path)!r}; allowed: {allowed}")
-    return tuple(f"{key}={tomli_w.dumps({'v': value})[4:].strip()}" for key, value in table[fidelity].items())
+
+    def text(value):
+        return tomli_w.dumps({"v": value})[4:].strip()
+    flat = [f"{key}={text(value)}" for key, value in table[fidelity].items() if not isinstance(value, dict)]
+    per_protocol = [f"{key}@{proto}={text(value)}" for proto, sub in table[fidelity].items() if isinstance(sub, dict)
+                    for key, value in sub.items()]
+    return (*flat, *per_protocol)
 
 
 def list_scenes() -> list[str]:

@@ -37,7 +37,7 @@ PROTOCOL_SETS = {
     },
 }
 COLUMNS = (("setup", "case", "12s"), ("points", "steps", "6d"), ("travel mm", "travel_mm", "10.3f"),
-           ("max Fy mN", "max_Fy_mN", "10.3f"), ("wall s", "wall_s", "8.1f"))
+           ("max Fy mN", "max_Fy_mN", "10.3f"), ("steps < min pts", "below_min", "15d"), ("wall s", "wall_s", "8.1f"))
 
 
 def sweep_cases(scene_name, setups, overrides, protocols: str = "scene") -> list[Case]:
@@ -90,7 +90,15 @@ def _row(out_dir: Path, case: Case, result: dict | None) -> dict:
     run = dataset.read(path, variables=("x", "Fy"))
     return {"case": case.name, "status": "ok", "steps": len(run.columns["x"]),
             "travel_mm": float(abs(run.columns["x"]).max()) * 1e3, "max_Fy_mN": float(run.columns["Fy"].max()) * 1e3,
-            "wall_s": float(run.attrs["wall_time_total_s"])}
+            "below_min": _steps_below_min(run.attrs), "wall_s": float(run.attrs["wall_time_total_s"])}
+
+
+def _steps_below_min(attrs) -> int | None:
+    """The run's steps with fewer active contact points than ``contact.min_active_points`` (None
+    without a coin, or in a dataset made before the count)."""
+    value = attrs.get("contact_steps_below_min_points")
+    value = np.ravel(value)[0] if value is not None and np.size(value) else None
+    return int(value) if isinstance(value, (int, np.integer)) else None
 
 
 def format_table(rows) -> str:
@@ -102,6 +110,10 @@ def format_table(rows) -> str:
         cells = [format(r[key], spec) if r.get(key) is not None else f"{'–':>{w}s}"
                  for (_, key, spec), w in zip(COLUMNS, widths)]
         lines.append(" ".join(cells) + f"  {r['status']}")
+    thin = [r["case"] for r in rows if r.get("below_min")]
+    if thin:
+        lines.append(f"WARNING: {len(thin)} case(s) had steps with fewer contact points than contact.min_active_points "
+                     f"({', '.join(thin)}): the contact patch is not resolved there (docs/fem_accuracy.md)")
     walls = [r["wall_s"] for r in rows if r.get("wall_s") is not None and np.isfinite(r["wall_s"])]
     if walls:
         lines.append(f"mean wall time per setup {np.mean(walls):.1f} s (paper, ABAQUS: {ABAQUS_S:g} s)")

@@ -1,4 +1,5 @@
 """Scene files: every shipped scene loads; every class of bad input fails clearly."""
+import dataclasses
 import subprocess
 import sys
 
@@ -147,3 +148,30 @@ def test_a_dataset_written_before_the_penalty_in_n_m3_still_reads():
     assert sc.contact.penalty_N_m3 == pytest.approx(10 * 0.56e6 / 0.005, rel=1e-12)
     again = scenes.from_resolved_toml(scenes.load("coin_pull").to_toml())
     assert again.contact == scenes.load("coin_pull").contact and again.table == scenes.load("coin_pull").table
+
+
+def test_a_fidelity_entry_for_one_protocol_applies_only_under_that_protocol():
+    sets = scenes.fidelity_overrides("coin_pull", "resolved")
+    release = ("load.protocol='release'", "load.ramp_time_s=1.0", "load.end_time_s=1.0")
+    ramp = scenes.load("coin_pull", setup="C1", overrides=sets)
+    pulled = scenes.load("coin_pull", setup="C1", overrides=(*release, *sets))
+    # placed at 400 V on the still coin, the DEA's edge crosses the rim nearer the middle
+    assert (ramp.mesh.rim_band_m, ramp.mesh.rim_band_divisions) == ((0.003, 0.005), 4)
+    assert (pulled.mesh.rim_band_m, pulled.mesh.rim_band_divisions) == ((0.0015, 0.004), 5)
+    assert dataclasses.replace(pulled.mesh, rim_band_m=ramp.mesh.rim_band_m, rim_band_divisions=4) == ramp.mesh
+    # the protocol may come after the entry; a later --set still wins
+    assert scenes.load("coin_pull", overrides=(*sets, *release)).mesh.rim_band_m == (0.0015, 0.004)
+    assert scenes.load("coin_pull", overrides=(*release, *sets, "mesh.rim_band_divisions=7")).mesh.rim_band_divisions == 7
+    # the release scene's own fidelity has the release band
+    own = scenes.load("coin_release", overrides=scenes.fidelity_overrides("coin_release", "resolved"))
+    assert own.mesh.rim_band_m == (0.0015, 0.004)
+
+
+@pytest.mark.parametrize("assignment, message", [
+    ("mesh.rim_band_m@sine9=[0.001,0.002]", "unknown protocol 'sine9'.*allowed: ramp"),
+    ("load.voltage_max_V@release=300", "load key cannot depend on the protocol"),
+    ("mesh.rim_bnd_m@release=[0.001,0.002]", "unknown key 'mesh.rim_bnd_m'.*rim_band_m"),
+])
+def test_a_per_protocol_override_is_checked_even_when_it_does_not_apply(assignment, message):
+    with pytest.raises(scenes.SceneError, match=message):
+        scenes.load("coin_pull", overrides=(assignment,))          # a ramp scene: the entry is for another

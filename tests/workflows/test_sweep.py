@@ -4,7 +4,7 @@ import pytest
 
 from deapull import dataset, protocol, scene as scenes
 from deapull.errors import InputError
-from deapull.workflows.sweep import PROTOCOL_SETS, sweep_cases
+from deapull.workflows.sweep import PROTOCOL_SETS, format_table, sweep_cases
 from tests.conftest import TINY_MESH, mpirun
 
 pytestmark = pytest.mark.fem
@@ -22,6 +22,23 @@ def test_excitation_cases_name_setup_and_protocol():
                      "random1": "random", "random2": "random", "random3": "random"}
     with pytest.raises(InputError, match="--protocols 'chirp'"):
         sweep_cases("coin_pull", ["C1"], (), "chirp")
+
+
+def test_the_resolved_release_case_meshes_the_rim_where_the_placed_dea_crosses_it():
+    cases = sweep_cases("coin_pull", ["C1"], scenes.fidelity_overrides("coin_pull", "resolved"), "excitation")
+    bands = {c.name: scenes.load("coin_pull", setup=c.setup, overrides=c.overrides).mesh.rim_band_m for c in cases}
+    assert bands.pop("C1_release") == (0.0015, 0.004)
+    assert set(bands.values()) == {(0.003, 0.005)}
+
+
+def test_the_closing_table_names_the_cases_whose_contact_was_thin():
+    rows = [{"case": "C1_rhr", "status": "ok", "steps": 725, "travel_mm": 1.18, "max_Fy_mN": 41.4, "below_min": 0,
+             "wall_s": 553.8},
+            {"case": "C1_release", "status": "ok", "steps": 732, "travel_mm": 1.34, "max_Fy_mN": 33.3, "below_min": 732,
+             "wall_s": 2377.9}]
+    table = format_table(rows)
+    assert "WARNING: 1 case(s)" in table and "(C1_release)" in table
+    assert "WARNING" not in format_table(rows[:1])
 
 
 @pytest.mark.mpi
