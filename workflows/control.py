@@ -381,6 +381,8 @@ def run(config: ControlConfig) -> list[Episode]:
                             ep.row["fem_run"] = str(plant.save(Path(config.save_fem_runs) / f"{stem}.nc", stem))
                         episodes.append(ep)
                         bar.update(1)
+                        if len(episodes) < total:       # so far, so that a long FEM run that stops keeps it
+                            write_outputs(config.out, episodes, task, left_out, figures=False)
     write_outputs(config.out, episodes, task, left_out)
     return episodes
 
@@ -425,9 +427,11 @@ def fem_run_name(setup: str, tag: str, policy: str, noise: float, episode: int) 
     return f"{setup}{tag}_{re.sub(r'[^A-Za-z0-9]', '-', policy)}_n{noise:g}_e{episode}"
 
 
-def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list[dict] = ()) -> None:
-    """The CSV, table, traces and figures of the episodes; ``left_out``: rows of the plants that
-    could not reach the task (in the CSV and the table, no traces)."""
+def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list[dict] = (),
+                  figures: bool = True) -> None:
+    """The CSV, table, traces and (``figures``) figures of the episodes; ``left_out``: rows of the
+    plants that could not reach the task (in the CSV and the table, no traces). Written after
+    every episode without the figures, each file whole (temp file, then rename)."""
     rows = [e.row for e in episodes] + list(left_out)
     columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred", "crlb") for f in PHI_FIELDS]
     write_csv(out / "control.csv", rows, columns)
@@ -439,4 +443,5 @@ def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list
         for f, v in e.inferred.items():
             traces[f"{key}|inferred_{f}"] = v
     atomic_write(out / "traces.npz", lambda p: np.savez_compressed(p, **traces), suffix=".npz")
-    control_outputs.plot_all(out, episodes, task.target_m, task.tolerance_m)
+    if figures:
+        control_outputs.plot_all(out, episodes, task.target_m, task.tolerance_m)

@@ -113,6 +113,25 @@ def test_control_run_writes_csv_table_and_figures(base, tmp_path, capsys):
     assert (out / "traces.npz").is_file() and (out / "run.json").is_file()
 
 
+def test_an_interrupted_run_keeps_the_episodes_it_finished(base, tmp_path, monkeypatch):
+    from deapull.workflows import control as workflow
+    real, calls = workflow.run_episode, []
+
+    def stopped_in_the_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(workflow, "run_episode", stopped_in_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        main([*base, "--policy", "pd", "--episodes", "2", "--target-mm", "-0.4", "--max-steps", "700", "--hold", "20"])
+    out = tmp_path / "out"
+    rows = _rows(out / "control.csv")
+    assert [(r["policy"], r["seed"]) for r in rows] == [("pd", "0")]
+    assert (out / "traces.npz").is_file() and (out / "table.md").is_file() and not list(out.glob("*.png"))
+
+
 @pytest.mark.fem
 def test_control_on_the_fem_plant_of_a_tiny_mesh(tmp_path):
     out = tmp_path / "out"

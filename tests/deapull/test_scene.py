@@ -159,12 +159,15 @@ def test_a_fidelity_entry_for_one_protocol_applies_only_under_that_protocol():
     assert (ramp.mesh.rim_band_m, ramp.mesh.rim_band_divisions) == ((0.003, 0.005), 4)
     assert (pulled.mesh.rim_band_m, pulled.mesh.rim_band_divisions) == ((0.0015, 0.004), 5)
     assert dataclasses.replace(pulled.mesh, rim_band_m=ramp.mesh.rim_band_m, rim_band_divisions=4) == ramp.mesh
+    # and presses the table harder, so the table is stiffer; the rest is the ramp's resolved
+    assert (ramp.table.penalty_N_m3, pulled.table.penalty_N_m3) == (1e12, 2e12)
+    assert (pulled.contact, pulled.coin, pulled.solver) == (ramp.contact, ramp.coin, ramp.solver)
     # the protocol may come after the entry; a later --set still wins
     assert scenes.load("coin_pull", overrides=(*sets, *release)).mesh.rim_band_m == (0.0015, 0.004)
     assert scenes.load("coin_pull", overrides=(*release, *sets, "mesh.rim_band_divisions=7")).mesh.rim_band_divisions == 7
     # the release scene's own fidelity has the release band
     own = scenes.load("coin_release", overrides=scenes.fidelity_overrides("coin_release", "resolved"))
-    assert own.mesh.rim_band_m == (0.0015, 0.004)
+    assert (own.mesh.rim_band_m, own.table.penalty_N_m3) == ((0.0015, 0.004), 2e12)
 
 
 @pytest.mark.parametrize("assignment, message", [
