@@ -475,7 +475,7 @@ def _select_for_protocol(data: dict, overrides) -> list[str]:
     checked, applied or not."""
     chosen, qualified = [], []
     for assignment in overrides:
-        path = assignment.split("=", 1)[0]
+        path, _, value = assignment.partition("=")
         if "@" not in path:
             chosen.append(assignment)
             continue
@@ -491,7 +491,7 @@ def _select_for_protocol(data: dict, overrides) -> list[str]:
             raise SceneError(f"--set {assignment!r}: unknown key {key!r}; allowed: "
                              + (f"{section}.{', '.join(known)}" if section in SECTIONS else
                                 f"section.key with section one of {', '.join(SECTIONS)}"))
-        qualified.append((len(chosen), proto, key + "=" + assignment.split("=", 1)[1]))
+        qualified.append((len(chosen), proto, f"{key}={value}"))
     if not qualified:
         return chosen
     probe = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}

@@ -90,15 +90,8 @@ def _row(out_dir: Path, case: Case, result: dict | None) -> dict:
     run = dataset.read(path, variables=("x", "Fy"))
     return {"case": case.name, "status": "ok", "steps": len(run.columns["x"]),
             "travel_mm": float(abs(run.columns["x"]).max()) * 1e3, "max_Fy_mN": float(run.columns["Fy"].max()) * 1e3,
-            "below_min": _steps_below_min(run.attrs), "wall_s": float(run.attrs["wall_time_total_s"])}
-
-
-def _steps_below_min(attrs) -> int | None:
-    """The run's steps with fewer active contact points than ``contact.min_active_points`` (None
-    without a coin, or in a dataset made before the count)."""
-    value = attrs.get("contact_steps_below_min_points")
-    value = np.ravel(value)[0] if value is not None and np.size(value) else None
-    return int(value) if isinstance(value, (int, np.integer)) else None
+            "below_min": run.attrs.get("contact_steps_below_min_points"),   # None before the count
+            "wall_s": float(run.attrs["wall_time_total_s"])}
 
 
 def format_table(rows) -> str:
