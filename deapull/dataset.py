@@ -55,6 +55,8 @@ VARIABLES = {
     "contact_x": ("m", "x of the DEA-obstacle contact centre: current positions weighted by the normal "
                        "traction (0 when nothing touches)"),
     "contact_z": ("m", "z of the contact centre (0 for a half model, whose mirror image balances it)"),
+    "contact_abs_z": ("m", "traction-weighted mean |z| of the DEA-obstacle contact: how far from the mid-plane "
+                           "z = 0 the patch sits, the same for a half and a whole model (0 when nothing touches)"),
     "table_Rx": ("N", "force of the table on the DEA along x (0 without a [table]); never part of Fx"),
     "table_Ry": ("N", "force of the table on the DEA along y, upward (0 without a [table]); never part of Fy"),
     "table_penetration_m": ("m", "largest penetration of the DEA's underside into the table at the table "

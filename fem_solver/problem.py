@@ -187,8 +187,9 @@ class DEAProblem:
             self.Fx_form, self.Fy_form = compat.form(self.contact.Fx), compat.form(self.contact.Fy)
             x = ufl.SpatialCoordinate(self.mesh) + u
             pn = self.contact.pressure
-            self.centre_forms = [compat.form(pn * self.ds_contact)] + [compat.form(pn * x[i] * self.ds_contact)
-                                                                      for i in (0, 2)]
+            self.centre_forms = ([compat.form(pn * self.ds_contact)]
+                                 + [compat.form(pn * x[i] * self.ds_contact) for i in (0, 2)]
+                                 + [compat.form(pn * abs(x[2]) * self.ds_contact)])
         if self.table is not None:
             self.table_forms = (compat.form(self.table.Rx), compat.form(self.table.Ry))
 
@@ -410,16 +411,18 @@ class DEAProblem:
         k = self.symmetry_factor
         return tuple(k * compat.assemble_scalar(f, self.comm) for f in self.table_forms)
 
-    def contact_centre(self) -> tuple[float, float]:
-        """(x, z) of the DEA–obstacle contact: the current positions on the underside weighted by
-        the normal traction (m; z = 0 for a half model, whose mirror image balances it);
+    def contact_centre(self) -> tuple[float, float, float]:
+        """(x, z, |z|) of the DEA–obstacle contact: the current positions on the underside weighted
+        by the normal traction (m; z = 0 for a half model, whose mirror image balances it), and
+        the traction-weighted mean of |z|, how far from the mid-plane z = 0 the patch sits (the
+        same for a half and a whole model; the coin's two patches straddle the DEA's edges);
         NaN when nothing touches."""
         if self.contact is None:
-            return math.nan, math.nan
-        total, mx, mz = (compat.assemble_scalar(f, self.comm) for f in self.centre_forms)
+            return math.nan, math.nan, math.nan
+        total, mx, mz, mabs = (compat.assemble_scalar(f, self.comm) for f in self.centre_forms)
         if not total > 0:
-            return math.nan, math.nan
-        return mx / total, (0.0 if self.symmetry_factor != 1.0 else mz / total)
+            return math.nan, math.nan, math.nan
+        return mx / total, (0.0 if self.symmetry_factor != 1.0 else mz / total), mabs / total
 
     def tip_displacement(self) -> np.ndarray:
         """Mean displacement of the free-end face (m)."""

@@ -104,6 +104,7 @@ class StepRecord:
     n_contact: int
     contact_x: float
     contact_z: float
+    contact_abs_z: float
     table_Rx: float
     table_Ry: float
     table_penetration_m: float
@@ -230,7 +231,7 @@ class Stepper:
         Fx, Fy = forces
         tip = p.tip_displacement()
         n_contact = p.active_contact_points()
-        cx, cz = p.contact_centre() if n_contact else (0.0, 0.0)
+        cx, cz, cabs = p.contact_centre() if n_contact else (0.0, 0.0, 0.0)
         Rx, Ry = p.table_reaction()
         rec = StepRecord(t=t, x=self.coin.x, u=self.coin.u, V=V, dt=dt, Fx=Fx, Fy=Fy, newton_iterations=its,
                          coupling_iterations=coupling_its, cutbacks=cutbacks, penetration_m=p.max_penetration(),
@@ -239,6 +240,7 @@ class Stepper:
                          tip_uy=tip[1], tip_uz=tip[2], mean_abs_J_minus_1=p.mean_volume_change(),
                          volume_change=p.net_volume_change(), n_contact=n_contact,
                          contact_x=cx if math.isfinite(cx) else 0.0, contact_z=cz if math.isfinite(cz) else 0.0,
+                         contact_abs_z=cabs if math.isfinite(cabs) else 0.0,
                          table_Rx=Rx, table_Ry=Ry, table_penetration_m=p.table_penetration(),
                          wall_time_s=wall)
         values = np.array([v for v in asdict(rec).values()], dtype=float)

@@ -24,8 +24,8 @@ ROUND_OFF = 1e-12   # relative to the column's largest value; measured: 0 (bit-i
 #: to the behaviour the fixture had
 ADDED_KEYS = {"contact": ("quadrature_degree", "quadrature_rule", "min_active_points"), "mesh": ("symmetry", "x_grading", "tip_zone_m", "tip_zone_divisions", "rim_band_m", "rim_band_divisions"),
               "solver": ("linear_solver",), "time": ("placement_first_step",)}
-ADDED_VARIABLES = ("penetration_qp_m", "n_contact", "contact_x", "contact_z", "table_Rx", "table_Ry",
-                   "table_penetration_m")
+ADDED_VARIABLES = ("penetration_qp_m", "n_contact", "contact_x", "contact_z", "contact_abs_z", "table_Rx",
+                   "table_Ry", "table_penetration_m")
 #: sections added since (issue 23), pinned out of reach in C3_TEST
 ADDED_SECTIONS = ("table",)
 #: keys renamed since, with the value the fixture's run had under the old name

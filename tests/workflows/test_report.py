@@ -507,6 +507,25 @@ def test_check_without_browser_says_so(tmp_path):
 
 # --- the real solver's field output ----------------------------------------------------------
 
+def _abs_z_by_quadrature(s3, frame: int) -> float:
+    """Traction-weighted mean |z| of the coin's contact, summed in NumPy over the picture's
+    sample points with the Gauss rule's weights and each underside face's reference area."""
+    from deapull import scene as scenes
+    from deapull.workflows.report import pictures_contact
+    c = s3.scene.contact
+    assert c.quadrature_rule == "gauss"
+    faces = pictures_contact.underside_faces(s3, scenes.layout_bottom(s3.scene))
+    x = pictures_contact.underside_samples(s3, frame, c.quadrature_degree, c.quadrature_rule)
+    p = c.penalty_N_m3 * np.maximum(pictures_contact.coin_depth(x, s3.coin, s3.at(s3.run_x, frame)), 0.0)
+    w = np.polynomial.legendre.leggauss(c.quadrature_degree // 2 + 1)[1] / 2.0
+    ref = s3.fields.points
+    lx = np.abs(ref[faces[:, -1, 0], 0] - ref[faces[:, 0, 0], 0])
+    lz = np.abs(ref[faces[:, 0, -1], 2] - ref[faces[:, 0, 0], 2])
+    weights = ((lx * lz)[:, None, None] * w[None, :, None] * w[None, None, :]).reshape(-1)
+    assert p.max() > 0
+    return float(np.sum(p * np.abs(x[:, 2]) * weights) / np.sum(p * weights))
+
+
 @pytest.mark.fem
 @pytest.mark.slow
 def test_pictures_from_a_real_solve(tmp_path):
@@ -528,6 +547,9 @@ def test_pictures_from_a_real_solve(tmp_path):
     last = len(s3.fields.times) - 1
     # the picture's count of the coin's active quadrature points is the solver's own
     assert pictures_contact.coin_contact(s3, last).n == round(s3.at("n_contact", last))
+    # the solver's contact_abs_z (a UFL integral over the contact facets) is the picture's own
+    # points' |z| weighted by their p_n and the Gauss rule's weights on each underside face
+    assert _abs_z_by_quadrature(s3, last) == pytest.approx(s3.at("contact_abs_z", last), rel=1e-6)
     _png_ok(pictures_contact.section_picture(s3, "kinetic", last, tmp_path / "s.png"))
 
 

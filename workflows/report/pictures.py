@@ -185,7 +185,7 @@ def mirror_z(points: np.ndarray, polys: list) -> tuple[np.ndarray, list]:
 
 
 #: the run's columns a picture reads when its dataset has them (the solver's contact record)
-RUN_OPTIONAL = ("stick", "n_contact", "contact_x", "contact_z", "table_penetration_m")
+RUN_OPTIONAL = ("stick", "n_contact", "contact_x", "contact_z", "contact_abs_z", "table_penetration_m")
 #: the colour bars of the two colourings
 ACTUATION_LABEL = "actuation |u(t) − u(rest)| [mm]\n(from the settled rest state: the sag left out)"
 SAG_LABEL = "gravity sag |u(rest)| [mm]\n(the rest state: the reference of the other frames)"

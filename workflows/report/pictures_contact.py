@@ -2,7 +2,8 @@
 contact patch, from the solver's field output.
 
 The run's dataset records per step the number of the coin's active contact points
-(``n_contact``) and the traction-weighted contact centre (``contact_x``, ``contact_z``), not
+(``n_contact``) and the traction-weighted contact centre (``contact_x``, ``contact_z``, and
+``contact_abs_z``, how far from the mid-plane the patches sit), not
 the traction at each point. This module recomputes it as ``fem_solver/contact.py`` defines it:
 the DEA's deformed underside is sampled at the contact integral's own quadrature points (the
 scene's ``contact.quadrature_rule`` and ``quadrature_degree`` on each underside face of the
@@ -202,8 +203,14 @@ def draw_patch(ax, s: Scene3D, frame: int, coin: Touch, table: Touch | None, pma
                             marker=marker, cmap=PRESSURE_CMAP, vmin=0.0, vmax=pmax, edgecolors="k", linewidths=0.5,
                             zorder=4)
     if "contact_x" in s.run:
-        ax.plot([s.at("contact_x", frame) * 1e3], [s.at("contact_z", frame) * 1e3 if "contact_z" in s.run else 0.0],
-                "x", color="b", ms=9, mew=2, zorder=5, label="solver's contact centre")
+        cx = s.at("contact_x", frame) * 1e3
+        if "contact_abs_z" in s.run and s.at("contact_abs_z", frame) > 0:   # one cross per patch, at ±|z|
+            cz = s.at("contact_abs_z", frame) * 1e3
+            ax.plot([cx, cx], [cz, -cz], "x", color="b", ms=9, mew=2, zorder=5,
+                    label="solver's contact centre of each patch (contact_x, ±contact_abs_z)")
+        else:
+            ax.plot([cx], [s.at("contact_z", frame) * 1e3 if "contact_z" in s.run else 0.0],
+                    "x", color="b", ms=9, mew=2, zorder=5, label="solver's contact centre")
         ax.legend(loc="upper center", fontsize=7, bbox_to_anchor=(0.5, -0.12))
     r, half = c.radius_m * 1e3 + 2.0, s.points[:, 2].max() * 1e3 + 1.0
     ax.set_xlim(xc - r, xc + r)
