@@ -52,6 +52,8 @@ so the coin does not coast past. Where the target lies at the edge of the coin's
 model's coin, pushed at the full rate to the voltage limit, would stop within the tolerance
 past the target) the taper is skipped: such a coin cannot coast far past, and on a coin whose
 travel grows with the push rate the slower push costs the last µm (:meth:`MPCPolicy._at_reach`).
+The stand-off (``standoff_stds``) gives way there too: a coin parked short of such a target
+restarts only after the tip has reloaded, and no voltage is left for that stroke.
 
 **Memory.** With an f_a whose step needs the DEA's state beyond its voltage (``f-memory``:
 the tip's contact point P and friction T, :attr:`CoinDynamics.memory_units`) the plan's
@@ -339,13 +341,19 @@ class MPCPolicy(Policy):
             values[f] = torch.tensor(prior[f][0] if anchored else estimate[f], dtype=torch.float64)
         return Phi(**values)
 
-    def _aim(self, x: float) -> float:
+    def _aim(self, xi0, x: float, V: float) -> float:
         """Where the plan goes: the target, or while the estimate is still too uncertain to
         stop inside the window (std above ``standoff_std`` × tolerance) a stand-off point
-        ``standoff_stds`` of its stds short of it, on the side the coin comes from."""
+        ``standoff_stds`` of its stds short of it, on the side the coin comes from. Not where
+        the target lies at the edge of the reach (:meth:`_at_reach`): a coin stopped there
+        restarts only after the tip has reloaded, and no voltage is left to make up that
+        stroke (fem:C7 at resolved parked at the stand-off and reached 400 V 11.5 µm short;
+        docs/control.md)."""
         cfg = self.config
         std = self.estimate_std_m
         if cfg.standoff_stds <= 0 or std <= cfg.standoff_std * self.tolerance_m or self.waited >= cfg.max_wait:
+            return self.target_m
+        if self._at_reach(xi0, x, V, within=cfg.standoff_stds * std + cfg.approach_m):
             return self.target_m
         return self.target_m + self.side * cfg.standoff_stds * std
 
@@ -375,13 +383,16 @@ class MPCPolicy(Policy):
         """f_a's rollout ξ (B, T+1, n) from ξ0 under ν: the compiled one, else :func:`mpc.rollout`."""
         return self.dynamics.rollout(xi0, nu) if self.native else mpc.rollout(self.dynamics, xi0, nu)
 
-    def _at_reach(self, xi0, x: float, V: float) -> bool:
+    def _at_reach(self, xi0, x: float, V: float, within: float | None = None) -> bool:
         """Whether the target lies at the edge of the coin's reach: pushed at the full rate up to
         the voltage limit, the model's coin (its travel scaled by 1 + g) would stop no more than
         the tolerance past the target. Then the approach taper does not apply: a coin that
         cannot go much further cannot coast past, and the slower push costs the last µm
-        (fem:C7 at resolved v2 stopped 0.13 µm outside the window at 400 V; docs/control.md)."""
-        if not (self.side > 0 and x > self.target_m and abs(x - self.target_m) < self.config.approach_m):
+        (fem:C7 at resolved v2 stopped 0.13 µm outside the window at 400 V; docs/control.md).
+        Judged only while the coin is short of the target by less than ``within`` (m; default
+        ``approach_m``)."""
+        within = self.config.approach_m if within is None else within
+        if not (self.side > 0 and x > self.target_m and abs(x - self.target_m) < within):
             return False
         steps = math.ceil(max(self.v_max_V - V, 0.0) / self.dv_max_V)
         if steps == 0:
@@ -459,7 +470,7 @@ class MPCPolicy(Policy):
         # within the band plus its own uncertainty; at constant V static friction holds
         # the coin and the estimate's std shrinks as the observations average
         error = abs(x - self.target_m)
-        aim = self._aim(x)
+        aim = self._aim(xi0, x, V)
         if cfg.hold_band > 0:
             if self.holding:
                 self.holding = error <= cfg.hold_band * self.tolerance_m + cfg.hold_stds * self.estimate_std_m

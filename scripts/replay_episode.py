@@ -72,10 +72,11 @@ def main(argv=None) -> int:
 
     def logged_act(self, obs, info):
         dV = act(self, obs, info)
-        x = self.previous[0]
+        x, _, V = self.previous
+        xi0 = self.dynamics.state(*self.previous, self.memory)
         log.append({"step": len(log), "x_true_m": float(X[len(log)]), "x_estimate_m": x,
                     "estimate_std_m": self.estimate_std_m, "holding": self.holding, "waited": self.waited,
-                    "aim_m": self._aim(x), "dV_V": float(dV)})
+                    "aim_m": self._aim(xi0, x, V), "dV_V": float(dV)})
         return dV
 
     mpc_policy.MPCPolicy.act = logged_act

@@ -471,6 +471,31 @@ def test_the_approach_taper_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     assert rows[-0.5e-3]["settled"] and rows[-0.5e-3]["final_V_V"] < 350, rows[-0.5e-3]
 
 
+def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
+    """The stand-off parks the coin short of the target while the estimate averages down; at the
+    edge of the reach (−0.645 mm, 3 µm inside the fixture surrogate's 0.4 V-per-step travel) the
+    parked coin never gets there (it stood short for the rest of the episode), as fem:C7 at
+    resolved did. So where :meth:`MPCPolicy._at_reach` holds the policy aims at the target
+    itself: it settles, having waited a few steps at most; well inside the reach (−0.5 mm) it
+    still waits at the stand-off. Broken once: with the reach left out of the stand-off the
+    −0.645 mm episode waited 800 steps and was never reached (the first check failed)."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    config = MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=0.4, approach_m=1e-4, creep_V=0.1,
+                       standoff_stds=2.0, max_wait=800)
+    rows, waited = {}, {}
+    for target in (-0.645e-3, -0.5e-3):
+        env = CoinPushEnv(plant, target_m=target, terminate_on_success=False, max_steps=3000, noise_std_m=1e-4)
+        policy = MPCPolicy(coulomb, config, phi=plant.truth)
+        rows[target] = run_episode(env, policy, seed=0, step_limit=2800, hold_steps=100).row
+        waited[target] = policy.waited
+    assert rows[-0.645e-3]["settled"] and waited[-0.645e-3] < 50, (rows[-0.645e-3], waited)
+    assert rows[-0.5e-3]["settled"] and waited[-0.5e-3] > 50, (rows[-0.5e-3], waited)
+
+
 @pytest.mark.parametrize("off_um, expected", [(2.0, "hold"), (7.0, "creep"), (9.0, "creep")])
 def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(fs1_model, monkeypatch, off_um,
                                                                                expected):
