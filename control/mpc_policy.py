@@ -183,6 +183,10 @@ class MPCConfig:
         ``standoff_std`` × tolerance, aim ``standoff_stds`` stds short of the target and hold
         V there (at most ``max_wait`` steps per setpoint) while the observations average down;
         then go on to the target on the model's (gain-corrected) prediction.
+    innovation_window : int
+        The bias filter's innovation check over this many steps (0: off;
+        :class:`~deapull.control.filters.BiasKalman`): an estimate that lags the observations
+        by more than the filter's own std allows is let go to follow them.
     """
 
     horizon: int = 20
@@ -210,6 +214,7 @@ class MPCConfig:
     standoff_stds: float = 0.0
     standoff_std: float = 0.3
     max_wait: int = 1500
+    innovation_window: int = 0
     unstall: bool = True
 
     def __post_init__(self):
@@ -220,7 +225,7 @@ class MPCConfig:
         if not 0 <= self.hold_band <= 1:
             raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
         for name in ("hold_stds", "recentre_stds", "recentre_band", "creep_V", "approach_m", "max_rate_V",
-                     "standoff_stds", "max_wait", "crlb_every", "bias_process_fraction"):
+                     "standoff_stds", "max_wait", "crlb_every", "bias_process_fraction", "innovation_window"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InputError(f"MPC {name} = {value!r}: must be a finite number >= 0")
@@ -275,7 +280,8 @@ class MPCPolicy(Policy):
         self.noisy = noise > 0
         self.kalman = self.bias = None
         if cfg.offset_free:
-            self.bias = BiasKalman(noise, cfg.process_std_m, cfg.bias_process_fraction)
+            self.bias = BiasKalman(noise, cfg.process_std_m, cfg.bias_process_fraction,
+                                   innovation_window=int(cfg.innovation_window))
         elif cfg.filter == "kf":
             self.kalman = ModelKalman(noise, cfg.process_std_m, cfg.process_fraction)
         if cfg.infer:

@@ -114,6 +114,7 @@ class ControlConfig:
     mpc_max_rate_V: float = 0.0
     mpc_creep_V: float = MPCConfig.creep_V
     mpc_standoff: float = 0.0
+    mpc_innovation_window: int = 0
     mpc_recentre: float = MPCConfig.recentre_stds
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
@@ -214,6 +215,9 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
             raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
         if not (math.isfinite(config.mpc_standoff) and config.mpc_standoff >= 0):
             raise InputError(f"--mpc-standoff {config.mpc_standoff!r}: must be a finite number >= 0 (stds)")
+        if config.mpc_innovation_window < 0:
+            raise InputError(f"--mpc-innovation-window {config.mpc_innovation_window!r}: must be an integer >= 0 "
+                             f"(steps; 0: off)")
         if not (math.isfinite(config.mpc_recentre) and config.mpc_recentre >= 0):
             raise InputError(f"--mpc-recentre {config.mpc_recentre!r}: must be a finite number >= 0 (stds; 0: off)")
         if not (math.isfinite(config.mpc_max_rate_V) and config.mpc_max_rate_V >= 0):
@@ -340,6 +344,7 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
                      approach_m=0.0 if plain else config.mpc_approach_m,
                      max_rate_V=0.0 if plain else config.mpc_max_rate_V, creep_V=config.mpc_creep_V,
                      standoff_stds=0.0 if plain else config.mpc_standoff,
+                     innovation_window=0 if plain else config.mpc_innovation_window,
                      recentre_stds=0.0 if plain else config.mpc_recentre,
                      inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
 

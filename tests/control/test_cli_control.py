@@ -55,6 +55,7 @@ def test_bad_arguments_exit_2_with_one_line_naming_them_before_any_work(base, tm
     (["--mpc-max-rate", "nan"], "--mpc-max-rate nan"),
     (["--mpc-creep", "0"], "--mpc-creep 0"),
     (["--mpc-recentre", "-1"], "--mpc-recentre -1"),
+    (["--mpc-innovation-window", "-5"], "--mpc-innovation-window -5"),
 ])
 def test_bad_mpc_arguments_exit_2(base, tmp_path, capsys, fs1_dir, change, named):
     argv = [*base, "--policy", "mpc", "--mpc-model", str(fs1_dir)] + [c.replace("{tmp}", str(tmp_path)) for c in change]
