@@ -168,11 +168,13 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     """``unstall``: after a pull-back (push to −0.30 mm, back to −0.25 mm, on to −0.30 mm) on a
     memoryless plant, the f-memory MPC's solved plans hold V with the coin standing (its
     model's tip must reload its friction first, late in the horizon); the policy creeps
-    instead and the coin is back on the third target within a few steps. Without the rule it
-    waited 64 steps for the second target (measured). Broken once (the creep replaced by
-    ``dV = 0.0`` in MPCPolicy.act): it failed with "{False: [59, 64, 7], True: [59, 64, 7]},
-    assert 64 < 20". Re-centring is off here: it moves the coin during the first hold, and
-    from there both reach the second target in 7 steps (measured), so it would hide the rule."""
+    instead and the coin is back on each target within a few steps. Without the rule it
+    waited 64 steps for the second target (measured), or, with another machine's fixture
+    model (float rounding), never reached the third in 1,200 steps. Broken on both machines
+    (the creep replaced by ``dV = 0.0`` in MPCPolicy.act): it failed with "{False: [59, 64,
+    7], True: [59, 64, 7]}, assert 64 < 20" and with "{False: [62, 6, None], True: [62, 6,
+    None]}". Re-centring is off here: it moves the coin during the first hold, and from
+    there both reach the second target in 7 steps (measured), so it would hide the rule."""
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
@@ -181,14 +183,19 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     phi = Phi(*TRUTH_PHI)
     plant = SurrogatePlant(trained("f-coulomb").model, phi)
     setpoints = (-0.3e-3, -0.25e-3, -0.3e-3)
-    steps = {}
+    steps, rows = {}, {}
     for unstall in (False, True):
         env = CoinPushEnv(plant, target_m=setpoints[0], terminate_on_success=False, max_steps=4000)
         policy = MPCPolicy(trained("f-memory").model, MPCConfig(infer=False, unstall=unstall, recentre_stds=0.0), phi=phi)
-        row = run_episode(env, policy, seed=0, step_limit=1200, hold_steps=50, setpoints_m=setpoints).row
-        assert row["setpoints_reached"] == 3 and row["setpoints_settled"] == 3, row
-        steps[unstall] = [int(s) for s in row["iterations_per_setpoint"].split(";")]
-    assert steps[True][1] < 20 < 40 < steps[False][1], steps
+        rows[unstall] = run_episode(env, policy, seed=0, step_limit=1200, hold_steps=50, setpoints_m=setpoints).row
+        steps[unstall] = [None if s == "None" else int(s) for s in rows[unstall]["iterations_per_setpoint"].split(";")]
+    # reached, not settled: the hold at the pull-back's −0.25 mm is the f-memory model's release
+    # (it held 33 µm off on one machine's fixture model, both with and without the rule)
+    assert rows[True]["setpoints_reached"] == 3 and max(steps[True][1:]) < 20, steps
+    # without the rule the coin stands after a reversal: at the second or the third target it
+    # waits 40 steps or more, or never arrives (which of the two depends on the fixture model's
+    # last bits: 64 steps at the second on one machine, never at the third on another)
+    assert any(s is None or s > 40 for s in steps[False][1:]), steps
 
 
 def test_the_cli_plans_with_an_f_memory_model_and_refuses_to_infer_with_it(trained, sweep_dir, fs1_dir, tmp_path,
