@@ -133,8 +133,10 @@ def test_the_bands_are_numpys_percentiles_of_the_episodes(tmp_path):
 
 def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
     """The FEM closed-loop section describes each run's MPC settings from its ``run.json``, not
-    from typed text: the rate limit, the approach and the stand-off appear only when that run
-    used them. Broken once: the rate read from the wrong key (the first check failed)."""
+    from typed text: the rate limit, the approach, the stand-off, the innovation check, the
+    fixed φ and f_a's folder appear only when that run used them. Broken once: the rate read
+    from the wrong key (the first check failed); and the window read from ``mpc_recentre``
+    (the last check failed)."""
     rate = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_approach_m": 0.0, "mpc_standoff": 0.0})
     assert "0.4 V per step" in rate and "mm of the target" not in rate and "stds" not in rate
     slow = sections_control.mpc_settings_text({"dv_max_V": 5.0, "mpc_max_rate_V": 0.0, "mpc_approach_m": 1e-3,
@@ -142,6 +144,10 @@ def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
     assert "5 V per step" in slow and "within 1 mm" in slow and "2 stds" in slow and "0.5 V per step" in slow
     taper = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_approach_m": 1e-4, "mpc_creep_V": 0.1})
     assert "within 0.1 mm" in taper and "down to 0.1 V per step" in taper
+    assert "innovations" not in taper and "no online inference" not in taper and "f_a from" not in taper
+    memory = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_innovation_window": 25,
+                                                  "mpc_no_infer": True, "mpc_model": "out/models/fa_mem"})
+    assert "last 25 innovations" in memory and "no online inference" in memory and "`out/models/fa_mem`" in memory
 
 
 def test_the_penalty_study_names_the_finest_patch_and_its_move_from_the_reference(tmp_path):

@@ -188,6 +188,13 @@ def mpc_settings_text(config: dict) -> str:
     if (config.get("mpc_standoff") or 0.0) > 0:
         parts.append(f"stopping {config['mpc_standoff']:g} stds of its estimate short while that is uncertain "
                      "(`--mpc-standoff`)")
+    if (config.get("mpc_innovation_window") or 0) > 0:
+        parts.append(f"its bias filter checking the mean of its last {config['mpc_innovation_window']:d} "
+                     "innovations (`--mpc-innovation-window`)")
+    if config.get("mpc_no_infer"):
+        parts.append("planning at the coin prior's median φ, no online inference (`--mpc-no-infer`)")
+    if config.get("mpc_model"):
+        parts.append(f"f_a from `{config['mpc_model']}`")
     return "; ".join(parts)
 
 
