@@ -16,7 +16,7 @@ MPIRUN := mpirun -n $(NP)
 FIDELITY ?= resolved
 FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem control-fem control-fem-seeds control-fem-memory fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -93,38 +93,39 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 		--phi-prior coins --data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa --sac-dir '$(MODELS)/sac{n}' \
 		--out $(OUT)/control
 
-# the sweep's 0.4 V per step (a slow push carries the heavy coins C5..C8 to the target), tapered
-# within 0.1 mm of the target down to 0.1 V per step (the coin arrives slowly enough for the estimate
-# to average): one setting for the single targets and push-push-pull-back (docs/control.md); a plant
-# whose ramp does not take its coin to the target (on the resolved contact: C5, C6 at -1 mm) is a row
-# "unreachable" in the table, and the others run
-FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --max-steps 3000 --mpc-model $(MODELS)/fa \
+# issue 24's FEM setting (docs/control.md, ninth session): the sweep's 0.4 V per step (a slow push
+# carries the heavy coins to the target), tapered within 0.1 mm of the target down to 0.1 V per step;
+# the f-memory f_a (it models the tip's dead band, so a coin parked short restarts; it cannot infer φ,
+# so it plans at the coin prior's median), a stand-off of 2 stds (the estimate averages down before
+# the last push; it gives way at the edge of the reach) and the bias filter's innovation check over 25
+# steps (the estimate follows the release of a pull-back). A plant whose ramp does not take its coin
+# to the target (on the resolved contact: C5, C6, C8 at -1 mm) is a row "unreachable" in the table.
+FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --max-steps 4000 --mpc-model $(MODELS)/fa_mem \
+	--mpc-no-infer --mpc-standoff 2 --mpc-innovation-window 25 \
 	--mpc-max-rate 0.4 --mpc-approach-mm 0.1 --mpc-creep 0.1 --unreachable report $(FIDELITY_ARG)
-control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (resolved: ~1 h on one core, ~5 min an episode; FIDELITY=: ~15 min)
-	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
-		--model f-coulomb --epochs 300 --out $(MODELS)/fa
+FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
+control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (resolved: ~1.5 h on one core, 7-25 min an episode)
+	$(FA_MEM)
 	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
 		--out $(OUT)/control_fem
 	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem/multi
 
-# the same two tasks with the tip-memory f_a (docs/control.md, "An f_a with the tip's memory"): it cannot
-# infer φ, so both plan with the coin prior's median (--mpc-no-infer)
-# issue 24's three-seed FEM goal: fem:C1 and fem:C3, seeds 0-2, with the f-memory f_a (it models the
-# tip's dead band, so a coin parked at the stand-off restarts) and a stand-off of 2 stds (the estimate
-# averages down before the last push): 6 of 6 settled at resolved (docs/control.md, seventh session)
-control-fem-seeds: setup ## fem:C1 and fem:C3, three seeds each, f-memory f_a with the stand-off (resolved: ~2 h on one core, 20-40 min an episode)
-	@test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
-		--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
-	$(DEAPULL) control $(FEM_CONTROL:$(MODELS)/fa=$(MODELS)/fa_mem) --mpc-no-infer --mpc-standoff 2 \
-		--episodes 3 --max-steps 4000 --plant fem:C1,fem:C3 --out $(OUT)/control_fem_seeds_standoff
+# issue 24's three-seed FEM goal: fem:C1 and fem:C3, seeds 0-2 (episode k is seed k), control-fem's setting
+control-fem-seeds: setup ## fem:C1 and fem:C3, three seeds each, control-fem's setting (resolved: ~1.5 h on one core, 7-15 min an episode)
+	$(FA_MEM)
+	$(DEAPULL) control $(FEM_CONTROL) --episodes 3 --plant fem:C1,fem:C3 --out $(OUT)/control_fem_seeds
 
-control-fem-memory: setup ## control-fem's single targets (fem:C3, fem:C5) and push-push-pull-back with an f-memory f_a (resolved: ~40 min; FIDELITY=: ~10 min)
-	@test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
-		--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
-	$(DEAPULL) control $(FEM_CONTROL:$(MODELS)/fa=$(MODELS)/fa_mem) --mpc-no-infer \
-		--plant fem:C3,fem:C5 --out $(OUT)/control_fem_memory
-	$(DEAPULL) control $(FEM_CONTROL:$(MODELS)/fa=$(MODELS)/fa_mem) --mpc-no-infer \
-		--plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem_memory/multi
+# the fourth session's setting, with online inference of φ: the f-coulomb f_a (trained on the C3..C7
+# ramps), no stand-off, no innovation check, 3,000 steps (docs/control.md: 4 of 6 seeds settled)
+FEM_CONTROL_INFER := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --max-steps 3000 --mpc-model $(MODELS)/fa \
+	--mpc-max-rate 0.4 --mpc-approach-mm 0.1 --mpc-creep 0.1 --unreachable report $(FIDELITY_ARG)
+control-fem-infer: setup ## control-fem's tasks with the f-coulomb f_a and online inference of φ (the fourth session's setting; resolved: ~1 h)
+	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+		--model f-coulomb --epochs 300 --out $(MODELS)/fa
+	$(DEAPULL) control $(FEM_CONTROL_INFER) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
+		--out $(OUT)/control_fem_infer
+	$(DEAPULL) control $(FEM_CONTROL_INFER) --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem_infer/multi
 
 experiments: setup ## the paper's six sliding sets for every model, best of 5 seeds on each validation setup (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments
