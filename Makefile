@@ -100,16 +100,18 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 # the last push; it gives way at the edge of the reach) and the bias filter's innovation check over 25
 # steps (the estimate follows the release of a pull-back). A plant whose ramp does not take its coin
 # to the target (on the resolved contact: C5, C6, C8 at -1 mm) is a row "unreachable" in the table.
-FEM_CONTROL := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --max-steps 4000 --mpc-model $(MODELS)/fa_mem \
-	--mpc-no-infer --mpc-standoff 2 --mpc-innovation-window 25 \
-	--mpc-max-rate 0.4 --mpc-approach-mm 0.1 --mpc-creep 0.1 --unreachable report $(FIDELITY_ARG)
+FEM_COMMON := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --mpc-max-rate 0.4 --mpc-approach-mm 0.1 \
+	--mpc-creep 0.1 --unreachable report $(FIDELITY_ARG)
+FEM_ALL := fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8
+FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7
+FEM_CONTROL := $(FEM_COMMON) --max-steps 4000 --mpc-model $(MODELS)/fa_mem --mpc-no-infer --mpc-standoff 2 \
+	--mpc-innovation-window 25
 FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
 control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (resolved: ~1.5 h on one core, 7-25 min an episode)
 	$(FA_MEM)
-	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
-		--out $(OUT)/control_fem
-	$(DEAPULL) control $(FEM_CONTROL) --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem/multi
+	$(DEAPULL) control $(FEM_CONTROL) --plant $(FEM_ALL) --out $(OUT)/control_fem
+	$(DEAPULL) control $(FEM_CONTROL) $(FEM_MULTI) --out $(OUT)/control_fem/multi
 
 # issue 24's three-seed FEM goal: fem:C1 and fem:C3, seeds 0-2 (episode k is seed k), control-fem's setting
 control-fem-seeds: setup ## fem:C1 and fem:C3, three seeds each, control-fem's setting (resolved: ~1.5 h on one core, 7-15 min an episode)
@@ -118,14 +120,12 @@ control-fem-seeds: setup ## fem:C1 and fem:C3, three seeds each, control-fem's s
 
 # the fourth session's setting, with online inference of φ: the f-coulomb f_a (trained on the C3..C7
 # ramps), no stand-off, no innovation check, 3,000 steps (docs/control.md: 4 of 6 seeds settled)
-FEM_CONTROL_INFER := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --max-steps 3000 --mpc-model $(MODELS)/fa \
-	--mpc-max-rate 0.4 --mpc-approach-mm 0.1 --mpc-creep 0.1 --unreachable report $(FIDELITY_ARG)
+FEM_CONTROL_INFER := $(FEM_COMMON) --max-steps 3000 --mpc-model $(MODELS)/fa
 control-fem-infer: setup ## control-fem's tasks with the f-coulomb f_a and online inference of φ (the fourth session's setting; resolved: ~1 h)
 	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --out $(MODELS)/fa
-	$(DEAPULL) control $(FEM_CONTROL_INFER) --plant fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8 \
-		--out $(OUT)/control_fem_infer
-	$(DEAPULL) control $(FEM_CONTROL_INFER) --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --out $(OUT)/control_fem_infer/multi
+	$(DEAPULL) control $(FEM_CONTROL_INFER) --plant $(FEM_ALL) --out $(OUT)/control_fem_infer
+	$(DEAPULL) control $(FEM_CONTROL_INFER) $(FEM_MULTI) --out $(OUT)/control_fem_infer/multi
 
 experiments: setup ## the paper's six sliding sets for every model, best of 5 seeds on each validation setup (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments
