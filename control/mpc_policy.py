@@ -302,6 +302,7 @@ class MPCPolicy(Policy):
         self.side, self.waited = math.copysign(1.0, 0.0 - self.target_m), 0   # the coin starts at x = 0
         self.previous = None          # (x, u, V) estimate of the previous step
         self.memory = None            # f_a's memory entries (scaled) after that step; None: at rest
+        self.reach_end = None         # this step's full-rate rollout to the voltage limit (_at_reach)
         self.solve_ms, self.inference_ms = [], []
 
     def inferred(self) -> dict:
@@ -403,8 +404,10 @@ class MPCPolicy(Policy):
         steps = math.ceil(max(self.v_max_V - V, 0.0) / self.dv_max_V)
         if steps == 0:
             return True
-        end = float(self._roll(xi0, torch.ones(1, steps, 1, dtype=torch.float64))[0, -1, 0]) * X_UNIT_M
-        reach = x + (1.0 + self.gain_error) * (end - x)
+        if self.reach_end is None:          # once per step: the stand-off and the taper both ask
+            ones = torch.ones(1, steps, 1, dtype=torch.float64)
+            self.reach_end = float(self._roll(xi0, ones)[0, -1, 0]) * X_UNIT_M
+        reach = x + (1.0 + self.gain_error) * (self.reach_end - x)
         return reach > self.target_m - self.tolerance_m
 
     def _cost(self, model_target_m: float):
@@ -470,6 +473,7 @@ class MPCPolicy(Policy):
         x, u = self._estimate(x, V)
         self.previous = (x, u, V)
         xi0 = self.dynamics.state(x, u, V, self.memory)
+        self.reach_end = None
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
         # hold (hysteresis): start once the estimate is inside the band, and go on while it stays

@@ -478,7 +478,11 @@ def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     resolved did. So where :meth:`MPCPolicy._at_reach` holds the policy aims at the target
     itself: it settles, having waited a few steps at most; well inside the reach (−0.5 mm) it
     still waits at the stand-off. Broken once: with the reach left out of the stand-off the
-    −0.645 mm episode waited 800 steps and was never reached (the first check failed)."""
+    −0.645 mm episode waited 800 steps and was never reached (the first check failed). The reach
+    is rolled out once per step, though the stand-off and the taper both ask (broken once: without
+    the step's memo, steps of the −0.645 mm episode rolled it out twice)."""
+    import collections
+
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
@@ -490,8 +494,18 @@ def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     for target in (-0.645e-3, -0.5e-3):
         env = CoinPushEnv(plant, target_m=target, terminate_on_success=False, max_steps=3000, noise_std_m=1e-4)
         policy = MPCPolicy(coulomb, config, phi=plant.truth)
+        reach_rolls, roll = collections.Counter(), policy._roll
+
+        def counted(xi0, nu, roll=roll, policy=policy, rolls=reach_rolls):
+            if nu.shape[1] > config.horizon:            # the full-rate push to the voltage limit
+                rolls[len(policy.solve_ms)] += 1        # keyed by the step
+            return roll(xi0, nu)
+
+        policy._roll = counted
         rows[target] = run_episode(env, policy, seed=0, step_limit=2800, hold_steps=100).row
         waited[target] = policy.waited
+        if target == -0.645e-3:
+            assert reach_rolls and max(reach_rolls.values()) == 1, reach_rolls.most_common(3)
     assert rows[-0.645e-3]["settled"] and waited[-0.645e-3] < 50, (rows[-0.645e-3], waited)
     assert rows[-0.5e-3]["settled"] and waited[-0.5e-3] > 50, (rows[-0.5e-3], waited)
 
