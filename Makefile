@@ -76,10 +76,9 @@ bench-control: setup ## ms per MPC step: our box-iLQR vs mpc.pytorch (installed 
 		--target-mm $(BENCH_TARGET_MM)
 
 FEM_PLANTS ?= C3
-bench-control-fem: setup ## one MPC episode on the FEM plant per setup in FEM_PLANTS: ms per FEM step and per plan, wall time per episode (needs $(DATA))
-	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
-		--model f-coulomb --epochs 300 --out $(MODELS)/fa
-	$(PY) bench/bench_control_fem.py --plants $(FEM_PLANTS) --mpc-model $(MODELS)/fa --data $(DATA) \
+bench-control-fem: setup ## one episode of make control-fem's MPC on the FEM plant per setup in FEM_PLANTS: ms per FEM step and per plan, wall time per episode (needs $(DATA))
+	$(FA_MEM)
+	$(PY) bench/bench_control_fem.py --plants $(FEM_PLANTS) --mpc-model $(MODELS)/fa_mem --data $(DATA) \
 		--fidelity '$(FIDELITY)' --out $(OUT)/bench_control_fem
 
 MODELS ?= $(OUT)/models

@@ -2,11 +2,17 @@
 on the FEM plant of each ``--plants`` setup, timed per part, in one run.
 
 Per episode: ms per FEM step (``advance(V, 1 ms)`` at ``--fidelity``, default resolved, serial), ms per MPC
-plan (the compiled iLQR on f_a) and per inference update, the closed-loop wall time of the
+plan (the compiled iLQR on f_a) and per inference update (none under ``make control-fem``'s
+fixed prior), the closed-loop wall time of the
 episode (placement, the start ramp and every step), and the ratio FEM step / MPC plan: how
 much of the loop is the plant. Beside the paper's figures (``deapull.paper``: its MPC's time
 per iteration and its ABAQUS run's time per ramp). Prints a table; ``--out``
 keeps the harness's outputs (control.csv, traces, plots) and ``bench_control_fem.json``.
+
+The defaults are ``make control-fem``'s setting (the f-memory f_a at the coin prior's median φ,
+0.4 V per step tapered to 0.1 V within 0.1 mm, a stand-off of 2 stds, the bias filter's
+innovation check over 25 steps, 4,000 steps); ``--mpc-model out/models/fa --infer --standoff 0
+--innovation-window 0 --max-steps 3000`` times ``make control-fem-infer``'s.
 """
 from __future__ import annotations
 
@@ -28,14 +34,20 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--plants", default="C3", help="setups of the FEM plant, comma-separated (default C3)")
     ap.add_argument("--noise", type=float, default=1e-4, help="observation noise std (m; default 1e-4)")
-    ap.add_argument("--mpc-model", default="out/models/fa", help="f_a (default out/models/fa)")
+    ap.add_argument("--mpc-model", default="out/models/fa_mem",
+                    help="f_a (default out/models/fa_mem, the f-memory f_a of make control-fem)")
     ap.add_argument("--data", default="data")
     ap.add_argument("--hold", type=int, default=100)
-    ap.add_argument("--max-steps", type=int, default=3000)
+    ap.add_argument("--max-steps", type=int, default=4000)
     ap.add_argument("--max-rate", type=float, default=0.4, help="the MPC's |dV| per step (V; as make control-fem)")
     ap.add_argument("--approach-mm", type=float, default=0.1, help="the MPC's approach limit (mm; as make control-fem)")
     ap.add_argument("--creep", type=float, default=0.1, help="the MPC's smallest |dV| per step (V; as make control-fem)")
-    ap.add_argument("--standoff", type=float, default=0.0, help="the MPC's stand-off in stds (as make control-fem)")
+    ap.add_argument("--standoff", type=float, default=2.0, help="the MPC's stand-off in stds (as make control-fem)")
+    ap.add_argument("--innovation-window", type=int, default=25,
+                    help="the bias filter's innovation check, in steps (as make control-fem; 0 = off)")
+    ap.add_argument("--infer", action="store_true",
+                    help="infer φ online (make control-fem-infer; needs an f_a that can: f-coulomb); default: plan "
+                         "at the coin prior's median, as make control-fem")
     ap.add_argument("--fidelity", default="resolved",
                     help="the FEM plant's fidelity (a [fidelities.NAME] of coin_pull; '' = the file as written; "
                          "default resolved, as the datasets)")
@@ -47,7 +59,8 @@ def main(argv=None) -> int:
                                                                                                      "--plants"))),
         noises=[args.noise], out=Path(args.out), episodes=1, hold_steps=args.hold, max_steps=args.max_steps,
         data=Path(args.data), mpc_model=args.mpc_model, phi_prior="coins", mpc_approach_m=1e-3 * args.approach_mm,
-        mpc_standoff=args.standoff, mpc_max_rate_V=args.max_rate, mpc_creep_V=args.creep, progress=False,
+        mpc_standoff=args.standoff, mpc_innovation_window=args.innovation_window, mpc_no_infer=not args.infer,
+        mpc_max_rate_V=args.max_rate, mpc_creep_V=args.creep, progress=False,
         overrides=list(scenes.fidelity_overrides("coin_pull", args.fidelity)), unreachable="report")
     rows = [e.row for e in control.run(config)]
     table = []
@@ -67,7 +80,8 @@ def main(argv=None) -> int:
     if rows:
         print(f"median FEM step {statistics.median(t['fem_ms'] for t in table):.1f} ms, "
               f"median MPC plan {statistics.median(t['plan_ms'] for t in table):.2f} ms")
-    write_json(Path(args.out) / "bench_control_fem.json", {"rows": table, "noise_std_m": args.noise}, indent=2)
+    write_json(Path(args.out) / "bench_control_fem.json", {"rows": table, "noise_std_m": args.noise,
+                                                           "setting": vars(args)}, indent=2)
     return 0
 
 
