@@ -183,6 +183,12 @@ class MPCConfig:
         ``standoff_std`` × tolerance, aim ``standoff_stds`` stds short of the target and hold
         V there (at most ``max_wait`` steps per setpoint) while the observations average down;
         then go on to the target on the model's (gain-corrected) prediction.
+    reach_gate : bool
+        Let the stand-off and the taper give way where f_a says the target lies at the edge of
+        the reach (:meth:`MPCPolicy._at_reach`; default on). Off for a plant that can go further
+        than f_a at the planning φ says: on the surrogates at 5 V per step the prior's median
+        puts −1 mm at C1's edge, the gate fires and the coin overshoots (docs/control.md, tenth
+        session).
     innovation_window : int
         The bias filter's innovation check over this many steps (0: off;
         :class:`~deapull.control.filters.BiasKalman`): an estimate that lags the observations
@@ -216,6 +222,7 @@ class MPCConfig:
     max_wait: int = 1500
     innovation_window: int = 0
     unstall: bool = True
+    reach_gate: bool = True
 
     def __post_init__(self):
         if self.filter not in FILTERS:
@@ -398,6 +405,8 @@ class MPCPolicy(Policy):
         (fem:C7 at resolved v2 stopped 0.13 µm outside the window at 400 V; docs/control.md).
         Judged only while the coin is short of the target by less than ``within`` (m; default
         ``approach_m``)."""
+        if not self.config.reach_gate:
+            return False
         within = self.config.approach_m if within is None else within
         if not (self.side > 0 and x > self.target_m and abs(x - self.target_m) < within):
             return False

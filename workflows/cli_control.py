@@ -27,7 +27,7 @@ def cmd_control(args) -> int:
         mpc_oracle=args.mpc_oracle, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
         mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, unreachable=args.unreachable,
         infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
-        mpc_innovation_window=args.mpc_innovation_window,
+        mpc_innovation_window=args.mpc_innovation_window, mpc_reach_gate=not args.mpc_no_reach_gate,
         **({} if args.mpc_recentre is None else {"mpc_recentre": args.mpc_recentre}),
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
@@ -105,6 +105,10 @@ def register(sub) -> None:
                    help="under noise the MPC stops this many stds of its position estimate short of the target and "
                         "holds V until the observations have averaged the estimate down, then goes on (default 0: "
                         "off; e.g. 2)")
+    p.add_argument("--mpc-no-reach-gate", action="store_true",
+                   help="keep the stand-off and the approach taper even where f_a says the target lies at the edge "
+                        "of the coin's reach (by default they give way there); for a plant that goes further than "
+                        "f_a at the planning φ, e.g. the surrogates at 5 V per step (docs/control.md)")
     p.add_argument("--mpc-innovation-window", type=int, default=0,
                    help="the MPC's bias filter checks the mean of its last N innovations against its own std and, "
                         "where they disagree (a model error the gain does not take up, e.g. the release on the "

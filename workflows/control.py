@@ -115,6 +115,7 @@ class ControlConfig:
     mpc_creep_V: float = MPCConfig.creep_V
     mpc_standoff: float = 0.0
     mpc_innovation_window: int = 0
+    mpc_reach_gate: bool = True
     mpc_recentre: float = MPCConfig.recentre_stds
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
@@ -345,6 +346,7 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
                      max_rate_V=0.0 if plain else config.mpc_max_rate_V, creep_V=config.mpc_creep_V,
                      standoff_stds=0.0 if plain else config.mpc_standoff,
                      innovation_window=0 if plain else config.mpc_innovation_window,
+                     reach_gate=config.mpc_reach_gate,
                      recentre_stds=0.0 if plain else config.mpc_recentre,
                      inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
 

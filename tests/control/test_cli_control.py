@@ -262,3 +262,14 @@ def test_the_fixed_prior_mpc_infers_nothing_and_needs_the_prior(base, tmp_path, 
     assert main(argv + ["--mpc-no-infer"]) == 2
     err = capsys.readouterr().err
     assert "--mpc-no-infer" in err and "--phi-prior coins" in err
+
+
+def test_the_reach_gate_flag_reaches_the_run(base, tmp_path, fs1_dir):
+    """``--mpc-no-reach-gate`` switches the gate off in the run (run.json names it); without it the
+    gate is on. The policy's side is tested in tests/control/test_mpc.py. Broken once (the flag not
+    passed to the config): run.json said true."""
+    argv = base + ["--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3", "--hold",
+                   "0", "--target-mm", "-0.4"]
+    for flags, gate in (([], True), (["--mpc-no-reach-gate"], False)):
+        assert main(argv + flags) == 0
+        assert json.loads((tmp_path / "out" / "run.json").read_text())["config"]["mpc_reach_gate"] is gate

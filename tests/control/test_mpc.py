@@ -510,6 +510,30 @@ def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     assert rows[-0.5e-3]["settled"] and waited[-0.5e-3] > 50, (rows[-0.5e-3], waited)
 
 
+def test_the_reach_gate_can_be_switched_off(coulomb, sweep):
+    """One 0.4 V step below the voltage limit and 5 µm short of the target, the policy judges the
+    target at the edge of the reach, so the stand-off and the taper give way (the test above).
+    With ``reach_gate=False`` (``--mpc-no-reach-gate``) it never does: on the surrogates at 5 V per
+    step the prior's median put −1 mm at C1's edge and the coin ran past (docs/control.md, tenth
+    session). Broken once (the flag ignored): the gate-off case judged True as well."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    target, V = -0.645e-3, 399.6
+    judged = {}
+    for gate in (True, False):
+        config = MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=0.4, approach_m=1e-4, creep_V=0.1,
+                           standoff_stds=2.0, reach_gate=gate)
+        env = CoinPushEnv(plant, target_m=target, terminate_on_success=False, max_steps=3000, noise_std_m=1e-4)
+        env.reset(seed=0)
+        policy = MPCPolicy(coulomb, config, phi=plant.truth)
+        policy.reset(env.task_spec())
+        x = target + 5e-6
+        judged[gate] = policy._at_reach(policy.dynamics.state(x, 0.0, V, None), x, V)
+    assert judged == {True: True, False: False}
+
+
 @pytest.mark.parametrize("off_um, expected", [(2.0, "hold"), (7.0, "creep"), (9.0, "creep")])
 def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(fs1_model, monkeypatch, off_um,
                                                                                expected):
