@@ -16,7 +16,7 @@ MPIRUN := mpirun -n $(NP)
 FIDELITY ?= resolved
 FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-control-fem control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-blas bench-control-fem control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -50,6 +50,9 @@ excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C
 
 bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the converged reference, Newton its, 8-setup sweep; beside ABAQUS 130 s
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP) --fidelity '$(FIDELITY)'
+
+bench-blas: setup ## the resolved Jacobian's LU (MUMPS, UMFPACK) with the system BLAS (OpenBLAS) vs the reference BLAS, same run; BLAS_SOLVE=1 adds the whole C3 ramp under both
+	$(PY) bench/bench_blas.py --out $(OUT)/bench_blas $(if $(BLAS_SOLVE),--solve)
 
 FEM_STUDY ?= reference,patch-rule,shipped
 fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule, the shipped default against it (FEM_STUDY=all: every study); resumes; ~1.5 h on one core

@@ -19,7 +19,14 @@ TABLE = ("t", "x", "u", "V", "dt", "Fx", "Fy")
 INTEGER = ("newton_iterations", "coupling_iterations", "cutbacks", "stick")
 #: changed on purpose: wall time, and the force balance is now the independent one
 NOT_COMPARED = ("wall_time_s", "force_balance_residual_N")
-ROUND_OFF = 1e-12   # relative to the column's largest value; measured: 0 (bit-identical)
+#: relative to the column's largest value, or to the largest of its group's (SCALE_GROUPS). Measured:
+#: 0 (bit-identical) with the BLAS the fixture was written with (the reference BLAS); with OpenBLAS
+#: (make setup, since 2026-11-27) the LU's round-off moves u by 3e-11 and Fx by 3e-12 of their
+#: largest values, the integers not at all
+ROUND_OFF = 1e-9
+#: columns that are zero up to round-off get their group's scale: tip_uz in the half model (~6e-18 m)
+#: the tip's, and the net volume change (~1e-10, incompressible) that of |J - 1|
+SCALE_GROUPS = (("tip_ux", "tip_uy", "tip_uz"), ("volume_change", "mean_abs_J_minus_1"))
 #: scene keys and variables added after the fixture was written (issue 12); C3_TEST pins the keys
 #: to the behaviour the fixture had
 ADDED_KEYS = {"contact": ("quadrature_degree", "quadrature_rule", "min_active_points"), "mesh": ("symmetry", "x_grading", "tip_zone_m", "tip_zone_divisions", "rim_band_m", "rim_band_divisions"),
@@ -56,7 +63,8 @@ def test_run_reproduces_the_records_before_the_stepping_api(c3_run):
         if name in INTEGER:
             np.testing.assert_array_equal(a, b, err_msg=name)
         else:
-            scale = max(float(np.abs(b).max()), 1e-300)
+            columns = next((g for g in SCALE_GROUPS if name in g), (name,))
+            scale = max(max(float(np.abs(old[c].values).max()) for c in columns), 1e-300)
             assert float(np.abs(a - b).max()) <= ROUND_OFF * scale, name
     assert set(TABLE) <= set(old.data_vars)
 
