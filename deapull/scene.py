@@ -147,6 +147,9 @@ class Contact:
     quadrature_rule: str = _choice("gauss", ("gauss", "gauss_lobatto"),
                                    "points of the contact integrals: gauss (interior points) or gauss_lobatto "
                                    "(includes the facet's edges and corners, where the patch ends)")
+    reach_m: float = _nonneg(0.0, "the DEA-obstacle integral runs over the underside facets within this distance "
+                                  "(along x, at rest) of the obstacle's footprint; a record where the DEA touches "
+                                  "the obstacle outside them stops the run (0: the whole underside)")
 
 
 @dataclass(frozen=True)

@@ -308,7 +308,7 @@ QUADRATURE_RULES = {"gauss": "default", "gauss_lobatto": "GLL"}
 
 
 def facet_measure(mesh, facet_tags, tag, degree, rule="gauss"):
-    """The ds measure of one tagged facet group with its own quadrature: degree and rule
+    """The ds measure of one tagged facet group (or a tuple of tags) with its own quadrature: degree and rule
     (``gauss``: Gauss–Legendre points inside the facet; ``gauss_lobatto``: Gauss–Lobatto–
     Legendre points, which include the facet's edges and corners)."""
     md = {"quadrature_degree": degree, "quadrature_rule": QUADRATURE_RULES[rule]}
@@ -374,6 +374,9 @@ class PointEvaluator:
         mesh = space.mesh
         n, gdim = self.points.shape[0], mesh.geometry.dim
         comps = [space.sub(i) for i in range(gdim)]
+        # the check's probe, made on every rank before any returns: making a Function is collective
+        # (a rank without points, e.g. the clamp's half of a split mesh, would leave the others waiting)
+        probe = dolfinx.fem.Function(function.function_space)
         if n == 0 or any(c.element.needs_dof_transformations for c in comps):
             return
         cell = {"hexahedron": basix.CellType.hexahedron, "tetrahedron": basix.CellType.tetrahedron}[
@@ -392,13 +395,12 @@ class PointEvaluator:
             cols.append(np.array([comp.dofmap.list.links(c) for c in self.cells]).ravel())
         self.B = scipy.sparse.csr_matrix((np.tile(phi.ravel(), gdim), (np.concatenate(rows), np.concatenate(cols))),
                                          shape=(gdim * n, len(function.x.array)))
-        self._check(function)
+        self._check(probe)
 
     def _field(self, function):
         return function if self.subspace is None else function.sub(self.subspace)
 
-    def _check(self, function):
-        probe = dolfinx.fem.Function(function.function_space)
+    def _check(self, probe):
         probe.x.array[:] = np.random.default_rng(0).standard_normal(len(probe.x.array))
         expected = self._field(probe).eval(self.points, self.cells)
         got = (self.B @ probe.x.array).reshape(expected.shape)

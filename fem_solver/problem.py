@@ -35,6 +35,22 @@ PARALLEL_FACTOR_PACKAGES = ("mumps",)
 #: dynamic scheduling outgrows (INFOG(1) = -9) fits the load dependence, and this relaxation is the
 #: remedy for it (memory only, not accuracy). A failed linear solve now names MUMPS's INFOG(1, 2).
 MUMPS_WORKSPACE_RELAXATION = 100
+# ``contact.reach_m`` (a scene key, 0 = off): the obstacle's contact integral runs over the
+# underside facets that overlap, along x in the reference configuration, the obstacle's footprint
+# at rest widened by that much on both sides; the rest of the underside cannot reach it. On
+# coin_pull (5 mm) the DEA and the coin move 1-2 mm against each other, and the 11 x 11 rule of
+# ``resolved`` then covers 36 of the 72 underside facets (docs/fem_accuracy.md). Outside, the
+# penalty and the friction are exactly zero, so the solution is the same to the bit; every record
+# checks that no quadrature point outside touches the obstacle (:meth:`DEAProblem.check_reach`).
+
+#: the problem's own facet tag of the underside facets out of the obstacle's reach (they keep
+#: ``groups.DEA_CONTACT`` in the mesh; one tag object serves every ds of a form, as UFL requires)
+OUT_OF_REACH = 100 + groups.DEA_CONTACT
+UNDERSIDE = (groups.DEA_CONTACT, OUT_OF_REACH)
+
+
+class ContactOutOfReach(RuntimeError):
+    """A point of the underside outside the contact integral's facets touches the obstacle."""
 
 
 @dataclass
@@ -103,6 +119,7 @@ class DEAProblem:
         self.gravity_scale = dolfinx.fem.Constant(mesh, 1.0)
 
         qd = sv.quadrature_degree
+        facet_tags = self._contact_reach(mesh, facet_tags)
         self.dx, self.ds = compat.integration_measures(mesh, cell_tags, facet_tags, qd)
         self.ds_contact = compat.facet_measure(mesh, facet_tags, groups.DEA_CONTACT, scene.contact.quadrature_degree,
                                                scene.contact.quadrature_rule)
@@ -111,6 +128,7 @@ class DEAProblem:
         self._tip_measure(qd)
         self._facet_tags = facet_tags
         self._contact_points = None     # (points, cells) of the contact quadrature, on first use
+        self._outside_points = None     # the same rule on the underside facets out of the obstacle's reach
         self._table_points = None       # the same for the table's quadrature
         # the table's rule: Gauss–Lobatto on quadrilateral facets (points on the edges and corners, where
         # the DEA drapes onto the table); basix has no Lobatto rule on triangles, so tetrahedra get Gauss
@@ -119,6 +137,46 @@ class DEAProblem:
         self._build_snes()
 
     # --- forms ---------------------------------------------------------------------
+
+    def _contact_reach(self, mesh, facet_tags):
+        """The facet tags with the underside facets beyond ``contact.reach_m`` of the
+        obstacle's footprint (along x, reference configuration) retagged :data:`OUT_OF_REACH`:
+        the contact integral runs over ``groups.DEA_CONTACT``, the table's over both."""
+        under = compat.facets_with_tag(facet_tags, groups.DEA_CONTACT)
+        reach = self.scene.contact.reach_m
+        if self.obstacle is None or reach <= 0:
+            return facet_tags
+        lay = self.layout
+        lo = lay.obstacle_center_x_m - lay.obstacle_radius_m - reach
+        hi = lay.obstacle_center_x_m + lay.obstacle_radius_m + reach
+        fdim = mesh.topology.dim - 1
+        geom = dolfinx.cpp.mesh.entities_to_geometry(mesh._mesh, fdim, under, False)
+        x = mesh.geometry.x[geom][:, :, 0]
+        far = set(under[(x.min(axis=1) > hi) | (x.max(axis=1) < lo)].tolist())
+        values = np.array([OUT_OF_REACH if (v == groups.DEA_CONTACT and i in far) else v
+                           for i, v in zip(facet_tags.indices, facet_tags.values)], dtype=np.int32)
+        return dolfinx.mesh.meshtags(mesh, fdim, facet_tags.indices, values)
+
+    def check_reach(self) -> None:
+        """Raise :class:`ContactOutOfReach` when a quadrature point (the contact rule's) of an
+        underside facet outside the contact integral touches the obstacle: the integral would
+        miss that contact. Collective under MPI."""
+        if self.contact is None:
+            return
+        if self._outside_points is None:
+            sc = self.scene.contact
+            outside = compat.facets_with_tag(self._facet_tags, OUT_OF_REACH)
+            points, cells = compat.facet_quadrature_points(self.mesh, outside, sc.quadrature_degree, sc.quadrature_rule)
+            self._outside_points = compat.PointEvaluator(self.w, points, cells, 0 if self.has_parts else None)
+        ev = self._outside_points
+        depth = self._obstacle_depth(ev.points + ev.values(self.w)) if len(ev.points) else np.zeros(0)
+        local = float(np.max(depth, initial=0.0))
+        deepest = self.comm.allreduce(local, op=MPI.MAX)
+        if deepest > 0:
+            raise ContactOutOfReach(
+                f"the DEA's underside touches the obstacle {deepest * 1e6:.3g} um deep outside the contact "
+                f"integral's facets (those within contact.reach_m = {self.scene.contact.reach_m * 1e3:g} mm of the "
+                f"obstacle's footprint at rest): raise contact.reach_m, or 0 for the whole underside")
 
     def _tip_measure(self, qd):
         L = self.layout.length_m
@@ -158,7 +216,7 @@ class DEAProblem:
         self.table = None
         if sc.table is not None:
             tb = sc.table
-            self.ds_table = compat.facet_measure(self.mesh, facet_tags, groups.DEA_CONTACT, tb.quadrature_degree,
+            self.ds_table = compat.facet_measure(self.mesh, facet_tags, UNDERSIDE, tb.quadrature_degree,
                                                  self.table_rule)
             self.mu_g = dolfinx.fem.Constant(self.mesh, float(tb.mu_g))
             self.table = table.table_terms(u, self.u_old, v, self.dt, self.ds_table, height_m=tb.height_m,
@@ -454,22 +512,25 @@ class DEAProblem:
         (``which = "contact"``) or the table's (``"table"``) integral on the underside."""
         attr = f"_{which}_points"
         if getattr(self, attr) is None:
-            facets = compat.facets_with_tag(self._facet_tags, groups.DEA_CONTACT)
             if which == "contact":
                 sc = self.scene.contact
                 degree, rule = sc.quadrature_degree, sc.quadrature_rule
+                facets = compat.facets_with_tag(self._facet_tags, groups.DEA_CONTACT)
             else:
                 degree, rule = self.scene.table.quadrature_degree, self.table_rule
+                facets = np.concatenate([compat.facets_with_tag(self._facet_tags, t) for t in UNDERSIDE])
             points, cells = compat.facet_quadrature_points(self.mesh, facets, degree, rule)
             setattr(self, attr, compat.PointEvaluator(self.w, points, cells, 0 if self.has_parts else None))
         ev = getattr(self, attr)
         return ev.points + ev.values(self.w)
 
     def _obstacle_depth_at_points(self) -> np.ndarray:
-        lay = self.layout
         x = self._positions_at("contact")
-        if not len(x):
-            return np.zeros(0)
+        return self._obstacle_depth(x) if len(x) else np.zeros(0)
+
+    def _obstacle_depth(self, x: np.ndarray) -> np.ndarray:
+        """Penetration (m, > 0 inside) of the current positions ``x`` (n, 3) into the obstacle."""
+        lay = self.layout
         rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
         return -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
                                                   self.obstacle.edge_radius_m)

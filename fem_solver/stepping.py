@@ -228,6 +228,7 @@ class Stepper:
     def _record(self, t, V, dt, its, coupling_its, cutbacks, wall, forces, residual) -> StepRecord:
         """The record of the state just solved (forces from the solve, before accept())."""
         p = self.p
+        p.check_reach()        # raises if the underside touches the obstacle outside the contact integral
         Fx, Fy = forces
         tip = p.tip_displacement()
         n_contact = p.active_contact_points()

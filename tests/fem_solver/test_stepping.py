@@ -29,7 +29,7 @@ ROUND_OFF = 1e-9
 SCALE_GROUPS = (("tip_ux", "tip_uy", "tip_uz"), ("volume_change", "mean_abs_J_minus_1"))
 #: scene keys and variables added after the fixture was written (issue 12); C3_TEST pins the keys
 #: to the behaviour the fixture had
-ADDED_KEYS = {"contact": ("quadrature_degree", "quadrature_rule", "min_active_points"), "mesh": ("symmetry", "x_grading", "tip_zone_m", "tip_zone_divisions", "rim_band_m", "rim_band_divisions"),
+ADDED_KEYS = {"contact": ("quadrature_degree", "quadrature_rule", "min_active_points", "reach_m"), "mesh": ("symmetry", "x_grading", "tip_zone_m", "tip_zone_divisions", "rim_band_m", "rim_band_divisions"),
               "solver": ("linear_solver",), "time": ("placement_first_step",)}
 ADDED_VARIABLES = ("penetration_qp_m", "n_contact", "contact_x", "contact_z", "contact_abs_z", "table_Rx",
                    "table_Ry", "table_penetration_m")
