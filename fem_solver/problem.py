@@ -128,7 +128,7 @@ class DEAProblem:
         self._tip_measure(qd)
         self._facet_tags = facet_tags
         self._contact_points = None     # (points, cells) of the contact quadrature, on first use
-        self._outside_points = None     # the same rule on the underside facets out of the obstacle's reach
+        self._outside_points = None     # the contact's rule on the underside facets out of the obstacle's reach
         self._table_points = None       # the same for the table's quadrature
         # the table's rule: Gauss–Lobatto on quadrilateral facets (points on the edges and corners, where
         # the DEA drapes onto the table); basix has no Lobatto rule on triangles, so tetrahedra get Gauss
@@ -142,7 +142,6 @@ class DEAProblem:
         """The facet tags with the underside facets beyond ``contact.reach_m`` of the
         obstacle's footprint (along x, reference configuration) retagged :data:`OUT_OF_REACH`:
         the contact integral runs over ``groups.DEA_CONTACT``, the table's over both."""
-        under = compat.facets_with_tag(facet_tags, groups.DEA_CONTACT)
         reach = self.scene.contact.reach_m
         if self.obstacle is None or reach <= 0:
             return facet_tags
@@ -150,11 +149,11 @@ class DEAProblem:
         lo = lay.obstacle_center_x_m - lay.obstacle_radius_m - reach
         hi = lay.obstacle_center_x_m + lay.obstacle_radius_m + reach
         fdim = mesh.topology.dim - 1
-        geom = dolfinx.cpp.mesh.entities_to_geometry(mesh._mesh, fdim, under, False)
-        x = mesh.geometry.x[geom][:, :, 0]
-        far = set(under[(x.min(axis=1) > hi) | (x.max(axis=1) < lo)].tolist())
-        values = np.array([OUT_OF_REACH if (v == groups.DEA_CONTACT and i in far) else v
-                           for i, v in zip(facet_tags.indices, facet_tags.values)], dtype=np.int32)
+        under = compat.facets_with_tag(facet_tags, groups.DEA_CONTACT)
+        x = mesh.geometry.x[dolfinx.cpp.mesh.entities_to_geometry(mesh._mesh, fdim, under, False)][:, :, 0]
+        far = under[(x.min(axis=1) > hi) | (x.max(axis=1) < lo)]
+        values = facet_tags.values.copy()
+        values[np.isin(facet_tags.indices, far)] = OUT_OF_REACH
         return dolfinx.mesh.meshtags(mesh, fdim, facet_tags.indices, values)
 
     def check_reach(self) -> None:
@@ -163,14 +162,7 @@ class DEAProblem:
         miss that contact. Collective under MPI."""
         if self.contact is None:
             return
-        if self._outside_points is None:
-            sc = self.scene.contact
-            outside = compat.facets_with_tag(self._facet_tags, OUT_OF_REACH)
-            points, cells = compat.facet_quadrature_points(self.mesh, outside, sc.quadrature_degree, sc.quadrature_rule)
-            self._outside_points = compat.PointEvaluator(self.w, points, cells, 0 if self.has_parts else None)
-        ev = self._outside_points
-        depth = self._obstacle_depth(ev.points + ev.values(self.w)) if len(ev.points) else np.zeros(0)
-        local = float(np.max(depth, initial=0.0))
+        local = float(np.max(self._obstacle_depth(self._positions_at("outside")), initial=0.0))
         deepest = self.comm.allreduce(local, op=MPI.MAX)
         if deepest > 0:
             raise ContactOutOfReach(
@@ -509,13 +501,15 @@ class DEAProblem:
 
     def _positions_at(self, which: str) -> np.ndarray:
         """Current positions (n, 3) of this rank's quadrature points of the obstacle's
-        (``which = "contact"``) or the table's (``"table"``) integral on the underside."""
+        (``which = "contact"``) or the table's (``"table"``) integral on the underside, or of the
+        obstacle's rule on the underside facets out of its reach (``"outside"``)."""
         attr = f"_{which}_points"
         if getattr(self, attr) is None:
-            if which == "contact":
+            if which in ("contact", "outside"):
                 sc = self.scene.contact
                 degree, rule = sc.quadrature_degree, sc.quadrature_rule
-                facets = compat.facets_with_tag(self._facet_tags, groups.DEA_CONTACT)
+                tag = groups.DEA_CONTACT if which == "contact" else OUT_OF_REACH
+                facets = compat.facets_with_tag(self._facet_tags, tag)
             else:
                 degree, rule = self.scene.table.quadrature_degree, self.table_rule
                 facets = np.concatenate([compat.facets_with_tag(self._facet_tags, t) for t in UNDERSIDE])
@@ -525,11 +519,12 @@ class DEAProblem:
         return ev.points + ev.values(self.w)
 
     def _obstacle_depth_at_points(self) -> np.ndarray:
-        x = self._positions_at("contact")
-        return self._obstacle_depth(x) if len(x) else np.zeros(0)
+        return self._obstacle_depth(self._positions_at("contact"))
 
     def _obstacle_depth(self, x: np.ndarray) -> np.ndarray:
         """Penetration (m, > 0 inside) of the current positions ``x`` (n, 3) into the obstacle."""
+        if not len(x):
+            return np.zeros(0)
         lay = self.layout
         rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
         return -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
