@@ -147,7 +147,8 @@ def register(sub) -> None:
     register_dagger(sub)
 
 
-def cmd_dagger(args) -> int:
+def dagger_config(args):
+    """The :class:`~deapull.workflows.dagger.DaggerConfig` of ``deapull dagger``'s arguments."""
     from deapull.workflows import control, dagger  # lazy: torch and gymnasium load only when a run starts
     from deapull.surrogate.data import parse_setups  # lazy: as above
     settings = control.ControlConfig(
@@ -156,11 +157,17 @@ def cmd_dagger(args) -> int:
         target_m=1e-3 * args.target_mm, data=Path(args.data), phi_prior=args.phi_prior,
         mpc_approach_m=1e-3 * args.mpc_approach_mm, mpc_standoff=args.mpc_standoff,
         mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, mpc_no_infer=args.mpc_no_infer,
+        mpc_innovation_window=args.mpc_innovation_window, mpc_reach_gate=not args.mpc_no_reach_gate,
         scene=args.scene, overrides=overrides_of(args), progress=False)
-    config = dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
-                                 val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
-                                 kind=args.model_kind,
-                                 model=None if args.mpc_model is None else Path(args.mpc_model), seed=args.seed)
+    return dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
+                               val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
+                               kind=args.model_kind,
+                               model=None if args.mpc_model is None else Path(args.mpc_model), seed=args.seed)
+
+
+def cmd_dagger(args) -> int:
+    from deapull.workflows import dagger  # lazy: as above
+    config = dagger_config(args)
     rows = dagger.run(config)
     print(dagger.summary_table(rows))
     print(f"wrote {config.out}/dagger.csv, dagger.md, models/, runs/ and control/")
@@ -193,6 +200,11 @@ def register_dagger(sub) -> None:
     p.add_argument("--mpc-no-infer", action="store_true",
                    help="plan with the coin prior's median, no online inference (needed by an f-memory f_a)")
     p.add_argument("--mpc-standoff", type=float, default=0.0, help="the MPC's stand-off (stds; default 0)")
+    p.add_argument("--mpc-innovation-window", type=int, default=0,
+                   help="the bias filter's innovation check over the last N steps (default 0: off; make "
+                        "control-fem uses 25; see deapull control --help)")
+    p.add_argument("--mpc-no-reach-gate", action="store_true",
+                   help="keep the stand-off and the taper at the edge of the reach (see deapull control --help)")
     p.add_argument("--max-steps", type=int, default=3000, help="steps before an episode counts as failed (3000)")
     p.add_argument("--hold", type=int, default=100, help="steps held after the first success (100)")
     p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position (mm; default -1)")

@@ -48,6 +48,7 @@ def test_aggregation_adds_the_closed_loop_runs_and_lowers_the_model_error_on_a_n
     (["--mpc-standoff", "-1"], "--mpc-standoff"),
     (["--model-kind", "f-memory"], "--mpc-no-infer"),
     (["--model-kind", "nn"], "cannot plan"),
+    (["--mpc-innovation-window", "-1"], "--mpc-innovation-window"),
 ])
 def test_bad_dagger_arguments_exit_2_naming_them_before_any_work(tmp_path, sweep_dir, capsys, change, named):
     from deapull.workflows.cli import main
@@ -58,6 +59,21 @@ def test_bad_dagger_arguments_exit_2_naming_them_before_any_work(tmp_path, sweep
     assert main(argv) == 2
     assert named in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_dagger_takes_make_control_fems_innovation_check_and_the_reach_gate():
+    """``deapull dagger`` can run ``make control-fem``'s MPC: ``--mpc-innovation-window`` and
+    ``--mpc-no-reach-gate`` reach the closed loop's settings; left out, the window is off and the
+    gate on, as in ``deapull control``. Broken once (the window not passed on): it stayed 0."""
+    from deapull.workflows.cli import build_parser
+    from deapull.workflows.cli_control import dagger_config
+    parser = build_parser()
+    base = ["dagger", "--out", "unused", "--mpc-no-infer", "--mpc-standoff", "2"]
+    plain = dagger_config(parser.parse_args(base)).control
+    assert plain.mpc_innovation_window == 0 and plain.mpc_reach_gate is True
+    fem = dagger_config(parser.parse_args(base + ["--mpc-innovation-window", "25", "--mpc-no-reach-gate"])).control
+    assert fem.mpc_innovation_window == 25 and fem.mpc_reach_gate is False
+    assert fem.mpc_standoff == 2.0 and fem.mpc_no_infer
 
 
 def test_aggregation_retrains_a_memory_f_a_as_a_memory_model(tmp_path, sweep_dir):

@@ -136,7 +136,8 @@ def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
     from typed text: the rate limit, the approach, the stand-off, the innovation check, the
     fixed φ and f_a's folder appear only when that run used them. Broken once: the rate read
     from the wrong key (the first check failed); and the window read from ``mpc_recentre``
-    (the last check failed)."""
+    (the last check failed); and the reach gate's sentence written whatever the flag (the
+    gate-on checks failed)."""
     rate = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_approach_m": 0.0, "mpc_standoff": 0.0})
     assert "0.4 V per step" in rate and "mm of the target" not in rate and "stds" not in rate
     slow = sections_control.mpc_settings_text({"dv_max_V": 5.0, "mpc_max_rate_V": 0.0, "mpc_approach_m": 1e-3,
@@ -148,6 +149,11 @@ def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
     memory = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_innovation_window": 25,
                                                   "mpc_no_infer": True, "mpc_model": "out/models/fa_mem"})
     assert "last 25 innovations" in memory and "no online inference" in memory and "`out/models/fa_mem`" in memory
+    assert "reach" not in slow and "reach" not in memory      # the gate on (the default) or nothing it gates
+    gate_off = sections_control.mpc_settings_text({"mpc_max_rate_V": 5.0, "mpc_approach_m": 2e-4, "mpc_standoff": 2.0,
+                                                    "mpc_reach_gate": False})
+    assert "`--mpc-no-reach-gate`" in gate_off
+    assert "reach" not in sections_control.mpc_settings_text({"mpc_max_rate_V": 5.0, "mpc_reach_gate": False})
 
 
 def test_the_penalty_study_names_the_finest_patch_and_its_move_from_the_reference(tmp_path):

@@ -191,6 +191,10 @@ def mpc_settings_text(config: dict) -> str:
     if (config.get("mpc_innovation_window") or 0) > 0:
         parts.append(f"its bias filter checking the mean of its last {config['mpc_innovation_window']:d} "
                      "innovations (`--mpc-innovation-window`)")
+    if config.get("mpc_reach_gate") is False and ((config.get("mpc_standoff") or 0.0) > 0
+                                                  or (config.get("mpc_approach_m") or 0.0) > 0):
+        parts.append("keeping the stand-off and the slow approach also where f_a puts the target at the edge of "
+                     "the coin's reach (`--mpc-no-reach-gate`)")
     if config.get("mpc_no_infer"):
         parts.append("planning at the coin prior's median φ, no online inference (`--mpc-no-infer`)")
     if config.get("mpc_model"):
