@@ -24,10 +24,8 @@ def cmd_control(args) -> int:
         max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm,
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
-        mpc_oracle=args.mpc_oracle, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm, phi_prior=args.phi_prior,
-        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, unreachable=args.unreachable,
-        infer_optimizer=args.infer_optimizer, mpc_standoff=args.mpc_standoff,
-        mpc_innovation_window=args.mpc_innovation_window, mpc_reach_gate=not args.mpc_no_reach_gate,
+        mpc_oracle=args.mpc_oracle, unreachable=args.unreachable, infer_optimizer=args.infer_optimizer,
+        **mpc_settings(args),
         **({} if args.mpc_recentre is None else {"mpc_recentre": args.mpc_recentre}),
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
@@ -38,6 +36,13 @@ def cmd_control(args) -> int:
     print(control.summary_table([e.row for e in episodes]))
     print(f"wrote {config.out}/control.csv, table.md, traces.npz, run.json and the figures")
     return 0
+
+
+def mpc_settings(args) -> dict:
+    """The MPC's flags that ``control`` and ``dagger`` share, as :class:`ControlConfig` fields."""
+    return dict(phi_prior=args.phi_prior, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm,
+                mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, mpc_standoff=args.mpc_standoff,
+                mpc_innovation_window=args.mpc_innovation_window, mpc_reach_gate=not args.mpc_no_reach_gate)
 
 
 def parse_setpoints(text: str) -> list[float]:
@@ -154,10 +159,7 @@ def dagger_config(args):
     settings = control.ControlConfig(
         policies=["mpc"], plants=control.parse_plants(args.plant, args.scene), noises=control.parse_noises(args.noise),
         out=Path(args.out), episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, hold_steps=args.hold,
-        target_m=1e-3 * args.target_mm, data=Path(args.data), phi_prior=args.phi_prior,
-        mpc_approach_m=1e-3 * args.mpc_approach_mm, mpc_standoff=args.mpc_standoff,
-        mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, mpc_no_infer=args.mpc_no_infer,
-        mpc_innovation_window=args.mpc_innovation_window, mpc_reach_gate=not args.mpc_no_reach_gate,
+        target_m=1e-3 * args.target_mm, data=Path(args.data), **mpc_settings(args),
         scene=args.scene, overrides=overrides_of(args), progress=False)
     return dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
                                val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
