@@ -1,8 +1,9 @@
 """FEM accuracy studies of coin_pull C3 (issues 12, 23): the converged reference (the resolved
 contact patch at three element sizes), the contact rule on it, the scene file (the fast preview) and
-the datasets' fidelity ``resolved`` each with its rule doubled, the contact quadrature, the friction regularisation ε_v and the candidate meshes.
+the datasets' fidelity ``resolved`` each with its rule doubled, ``resolved`` refined one direction at a
+time (``refine``), the contact quadrature, the friction regularisation ε_v and the candidate meshes.
 
-    deapull fem-study --study shipped|reference|patch-rule|quadrature|friction|candidates|all --out out/fem_study
+    deapull fem-study --study shipped|reference|refine|patch-rule|quadrature|friction|candidates|all --out out/fem_study
 
 Each case is one ``deapull solve`` run (one core) into ``<out>/<case>/C3.nc``; a case whose
 dataset exists is not run again (the study resumes). The table compares every case with
@@ -153,7 +154,40 @@ CANDIDATES = {
     "half-16x10-g8": (*HALF, *UMF, *mesh(16, 10), *quad("gauss", 8)),
 }
 
-STUDIES = {"reference": REFERENCE, "patch-soft": PATCH_SOFT, "patch-rule": PATCH_RULE, "patch-fine": PATCH_FINE, "patch-penalty": PATCH_PENALTY, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED}
+#: the datasets' fidelity ``resolved`` refined one direction at a time (issue 23, twelfth session):
+#: C3 at the fidelity ladder's reference step 0.005 s (the shipped 1/720 s moves the travel 0.2 %).
+#: The layers are the divisions through each layer's thickness, the patch the 2 mm tip zone (x)
+#: and the 3 <= z <= 5 mm rim band (z), 0.5 mm elements at ``resolved``; ``level1`` doubles every
+#: division (the fidelity ladder's reference, 34,700 dofs: run it with --reference-ranks 2).
+REFINE_DT = ("time.dt_max_s=0.005", "time.dt_initial_s=0.001")
+
+
+def layers(n: int) -> tuple:
+    return (f"mesh.n_active={n}", f"mesh.n_passive={n}")
+
+
+def tip_rim(tip: int, rim: int) -> tuple:
+    return (f"mesh.tip_zone_divisions={tip}", f"mesh.rim_band_divisions={rim}")
+
+
+def refined(*overrides) -> tuple:
+    return (*RESOLVED, *REFINE_DT, *overrides)
+
+
+REFINE_BASE = "resolved-5ms"
+REFINE = {REFINE_BASE: refined(),
+          "inplane2": refined("mesh.n_length=16", "mesh.n_width=4"),
+          "patch2": refined(*tip_rim(8, 8)),
+          **{f"layers{n}": refined(*layers(n)) for n in (2, 4, 8)},
+          "layers2-patch2": refined(*layers(2), *tip_rim(8, 8)),
+          "layers4-patch2": refined(*layers(4), *tip_rim(8, 8)),
+          "layers2-tip2-rim4": refined(*layers(2), *tip_rim(8, 16)),
+          "level1": refined("mesh.level=1")}
+#: the layers ladder (one, two, four, eight elements per layer; refinement ratio 2)
+REFINE_LAYERS = (REFINE_BASE, "layers2", "layers4", "layers8")
+
+STUDIES = {"reference": REFERENCE, "patch-soft": PATCH_SOFT, "patch-rule": PATCH_RULE, "patch-fine": PATCH_FINE, "patch-penalty": PATCH_PENALTY, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED,
+           "refine": REFINE}
 
 
 def mpirun_env() -> dict:
@@ -336,6 +370,56 @@ def ladder_table(ref: dict) -> str:
     return "\n".join(lines)
 
 
+REFINE_TABLE = (("case", "case", ""), ("dofs", "dofs", "d"), ("wall s", "wall_s", ".0f"),
+                ("travel mm", "travel_mm", ".4f"), (f"vs {REFINE_BASE} %", "vs_base_pct", "+.2f"),
+                ("vs finest %", "vs_finest_pct", "+.2f"), ("x(t) vs finest %", "x_mae_finest_pct", ".2f"),
+                ("stroke mm", "stroke_mm", ".4f"), ("contact points (median)", "active_points", "d"))
+
+
+def refine_summary(out: Path) -> tuple[list[dict], list[str]]:
+    """The ``refine`` study against its own cases: every case of it complete under ``out`` (run
+    now or before), its travel, the change from ``resolved`` at the same step, and its travel
+    and x(t) (MAE, % of the finest travel) against the finest case there (the most dofs); the
+    DEA's stroke |tip_ux| at the end. Then the layers ladder (one, two, four, eight elements per
+    layer) through :func:`richardson`, each three consecutive levels on their own: an order
+    that the first three do not share is not an asymptotic one, and the lines say so."""
+    names = [n for n in REFINE if dataset.is_complete(out / n / "C3.nc", resolved_scene(REFINE[n]))]
+    runs = {n: dataset.read(out / n / "C3.nc", ("t", "x", "tip_ux"), optional=("n_contact",)) for n in names}
+    if not runs:
+        return [], ["refine: no case of the study is complete under " + str(out)]
+    travel = {n: float(np.max(np.abs(r.columns["x"]))) for n, r in runs.items()}
+    finest = max(names, key=lambda n: int(runs[n].attrs["mesh_dofs"]))
+    t_f, x_f = runs[finest].columns["t"], runs[finest].columns["x"]
+    rows = []
+    for n in names:
+        r = runs[n]
+        nc = r.columns.get("n_contact")
+        mae = float(np.mean(np.abs(np.interp(t_f, r.columns["t"], r.columns["x"]) - x_f)))
+        rows.append({"case": n, "dofs": int(r.attrs["mesh_dofs"]), "wall_s": float(r.attrs["wall_time_total_s"]),
+                     "travel_mm": 1e3 * travel[n],
+                     "vs_base_pct": 100 * (travel[n] / travel[REFINE_BASE] - 1) if REFINE_BASE in travel else math.nan,
+                     "vs_finest_pct": 100 * (travel[n] / travel[finest] - 1),
+                     "x_mae_finest_pct": 100 * mae / travel[finest],
+                     "stroke_mm": 1e3 * abs(float(r.columns["tip_ux"][-1])),
+                     "active_points": int(np.median(nc)) if nc is not None else -1})
+    lines = [f"finest case: {finest} ({int(runs[finest].attrs['mesh_dofs']):,} dofs), travel "
+             f"{1e3 * travel[finest]:.4f} mm"]
+    ladder_travels = [travel.get(n) for n in REFINE_LAYERS]
+    for i in range(len(REFINE_LAYERS) - 2):
+        triple = ladder_travels[i:i + 3]
+        label = " / ".join(REFINE_LAYERS[i:i + 3])
+        if any(f is None for f in triple):
+            continue
+        p, extrap, bound = richardson(triple, (2.0, 2.0))
+        if math.isfinite(p):
+            lines.append(f"layers {label}: observed order {p:.2f}, Richardson travel {1e3 * extrap:.4f} mm "
+                         f"± {1e3 * bound:.4f} mm ({100 * bound / extrap:.2f} %)")
+        else:
+            lines.append(f"layers {label}: no observed order (the steps {1e3 * (triple[1] - triple[0]):+.4f}, "
+                         f"{1e3 * (triple[2] - triple[1]):+.4f} mm do not shrink geometrically)")
+    return rows, lines
+
+
 def run_studies(studies, out: Path, reference: Path, cases=(), reference_ranks: int = 1) -> int:
     """Run the studies' missing cases (resumes), then print the reference's convergence table
     and every study's comparison against it. With ``reference`` among the studies the reference
@@ -352,7 +436,8 @@ def run_studies(studies, out: Path, reference: Path, cases=(), reference_ranks: 
                              f"{', '.join(STUDIES[study])})")
     for study in studies:
         for name in chosen[study]:
-            solve(out, name, STUDIES[study][name], ranks=reference_ranks if study == "reference" else 1)
+            solve(out, name, STUDIES[study][name],
+                  ranks=reference_ranks if study in ("reference", "refine") else 1)
     if "reference" in studies:
         missing = [n for n in REFERENCE_ORDER
                    if not dataset.is_complete(out / n / "C3.nc", resolved_scene(REFERENCE[n]))]
@@ -375,6 +460,14 @@ def run_studies(studies, out: Path, reference: Path, cases=(), reference_ranks: 
         write_text(out / f"{study}.md", table + "\n")
         print(f"\n{study} (errors against the reference travel {1e3 * ref['travel_extrapolated_m']:.4f} mm and "
               f"the finest level's x(t))\n{table}")
+        if study == "refine":
+            rows, lines = refine_summary(out)
+            if rows:
+                write_csv(out / "refine-own.csv", rows, [k for _, k, _ in REFINE_TABLE])
+                table = markdown_table(rows, REFINE_TABLE)
+                write_text(out / "refine-own.md", table + "\n\n" + "\n".join(f"- {x}" for x in lines) + "\n")
+                print(f"\nrefine against its own finest case\n{table}")
+            print("\n".join(lines))
     return 0
 
 
@@ -388,8 +481,8 @@ def add_arguments(ap) -> None:
                     help="folder with reference.json and C3_reference.nc (default: the committed one)")
     ap.add_argument("--cases", default="", help="comma-separated subset of the study's cases")
     ap.add_argument("--reference-ranks", type=int, default=1,
-                    help="MPI ranks for each reference level (> 1: one mesh split over ranks, MUMPS); other "
-                         "studies run on one core")
+                    help="MPI ranks for each reference level and each refine case (> 1: one mesh split over "
+                         "ranks, MUMPS); other studies run on one core")
 
 
 def studies_from(arg: str) -> list[str]:

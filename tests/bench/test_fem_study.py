@@ -4,6 +4,7 @@ checked on sequences f(h) = f0 + C h^p whose limit and order are known."""
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 
@@ -88,3 +89,50 @@ def test_the_reference_bound_adds_the_mesh_and_the_penalty_shares():
     est = reference_estimate(smooth, RATIOS, pair)
     assert est["observed_order"] == pytest.approx(2.0, rel=1e-6)
     assert est["mesh_bound_m"] == pytest.approx(GCI_SAFETY * abs(smooth[-1] - 1.3e-3), rel=1e-6)
+
+
+def _refine_case(out, name, travel_m, dofs, stroke_m, scene_overrides=None):
+    """A stand-in dataset of one ``refine`` case: x ramps linearly to ``travel_m`` (the coin's
+    push is -x), made with the case's resolved scene unless ``scene_overrides`` says otherwise."""
+    import numpy as np
+
+    from deapull import dataset
+    from deapull.workflows import fem_study
+    cols = {v: np.zeros(11) for v in dataset.VARIABLES}
+    cols["t"] = np.linspace(0.0, 1.0, 11)
+    cols["x"] = -travel_m * cols["t"]
+    cols["tip_ux"] = -stroke_m * cols["t"]
+    cols["n_contact"] = np.full(11, 30.0)
+    overrides = fem_study.REFINE[name] if scene_overrides is None else scene_overrides
+    attrs = {"scene_toml": fem_study.resolved_scene(overrides), "mesh_dofs": dofs, "wall_time_total_s": 1.0}
+    dataset.write(dataset.build(cols, attrs), out / name / "C3.nc")
+
+
+def test_the_refine_study_compares_with_its_finest_case_and_fits_the_layers_triple_by_triple(tmp_path):
+    """``fem-study --study refine``'s own table: each case against ``resolved`` at the same step
+    and against the finest case present (the most dofs), and the layers ladder 1 / 2 / 4 / 8
+    through Richardson, each three levels on their own. The layers travel f0 + C h^2 except the
+    first level, which is off the asymptote: the 2 / 4 / 8 triple must give order 2 and f0, the
+    1 / 2 / 4 triple must say it has no order. A case made with another scene (a stale run) is
+    left out. Broken once: the finest case taken by the fewest dofs (vs finest was against
+    resolved, +0.00 % there)."""
+    from deapull.workflows import fem_study
+    f0, c = 1.2400e-3, 0.0320e-3                       # travel at h = 1 / n elements per layer
+    travels = {"layers2": f0 + c / 4, "layers4": f0 + c / 16, "layers8": f0 + c / 64}
+    travels[fem_study.REFINE_BASE] = travels["layers2"] + 0.0010e-3      # a first step smaller than the second
+    for name, dofs in ((fem_study.REFINE_BASE, 5148), ("layers2", 9230), ("layers4", 17394), ("layers8", 33722)):
+        _refine_case(tmp_path, name, travels[name], dofs, 1.66e-3)
+    _refine_case(tmp_path, "level1", 1.0e-3, 34700, 1.6e-3, scene_overrides=fem_study.REFINE["layers2"])  # stale
+    rows, lines = fem_study.refine_summary(tmp_path)
+    by = {r["case"]: r for r in rows}
+    assert set(by) == {fem_study.REFINE_BASE, "layers2", "layers4", "layers8"}
+    assert lines[0].startswith("finest case: layers8 (33,722 dofs)")
+    assert by["layers8"]["vs_finest_pct"] == 0.0 and by["layers8"]["x_mae_finest_pct"] == 0.0
+    assert math.isclose(by["layers4"]["vs_finest_pct"], 100 * (travels["layers4"] / travels["layers8"] - 1))
+    assert math.isclose(by["layers8"]["vs_base_pct"], 100 * (travels["layers8"] / travels[fem_study.REFINE_BASE] - 1))
+    assert math.isclose(by["layers4"]["stroke_mm"], 1.66)
+    [first, second] = [x for x in lines if x.startswith("layers ")]
+    assert "no observed order" in first and fem_study.REFINE_BASE in first
+    order, extrap = re.search(r"observed order ([\d.]+), Richardson travel ([\d.]+) mm", second).groups()
+    assert abs(float(order) - 2.0) < 0.01 and abs(float(extrap) - 1e3 * f0) < 1e-4
+    assert fem_study.refine_summary(tmp_path / "empty")[0] == []
