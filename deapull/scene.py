@@ -228,6 +228,10 @@ class Mesh:
     x_grading: float = _num(1.0, lo=1.0, lo_open=False, hi=20.0,
                             doc="ratio of the element length at the clamp to the one at the free end (>= 1; "
                                 "1 = uniform; > 1 refines toward the tip and the coin)")
+    underside_grading: float = _num(1.0, lo=1.0, lo_open=False, hi=20.0,
+                                    doc="ratio of the largest to the smallest element through the bottom layer, "
+                                        "the smallest on the underside, where the DEA touches the coin and the "
+                                        "table (>= 1; 1 = uniform; the layer's divisions stay n_active or n_passive)")
     tip_zone_m: float = _nonneg(0.0, "length (x) of the tip zone from the free end, meshed with its own uniform "
                                      "tip_zone_divisions (0: no tip zone); n_length and x_grading mesh the rest")
     tip_zone_divisions: int = _num(4, lo=0, integer=True, doc="divisions along x of the tip zone")
@@ -269,12 +273,26 @@ class Scene:
         load = out["load"]
         load["table_t_s"], load["table_V"] = list(load["table_t_s"]), list(load["table_V"])
         out["load"] = {k: v for k, v in load.items() if k in self.load.keys() and not (k == "table_csv" and not v)}
+        for section, key in WRITTEN_WHEN_SET:
+            sec = getattr(self, section)
+            if sec is not None and getattr(sec, key) == _default(type(sec), key):
+                del out[section][key]
         return out
 
     def to_toml(self) -> str:
         """The resolved scene as TOML; loading it again gives the same scene."""
         head = f"# resolved scene {self.scene.name!r}, setup {self.setup!r}\n" if self.setup else ""
         return head + tomli_w.dumps(self.to_dict())
+
+
+#: keys added after datasets were made: in the resolved scene (``to_toml``, what a dataset records and
+#: what a resume compares) only when set away from their default, so that the datasets made before
+#: them, which ran at that default, still count as done for the same scene
+WRITTEN_WHEN_SET = (("mesh", "underside_grading"),)
+
+
+def _default(cls, key: str):
+    return next(f.default for f in dataclasses.fields(cls) if f.name == key)
 
 
 SECTIONS = {"scene": SceneInfo, "dea": DEA, "coin": Coin, "stop": Stop, "table": Table, "contact": Contact,

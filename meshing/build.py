@@ -72,6 +72,25 @@ def _x_progression(scene: Scene, curve: int, count: int) -> float:
     return r if start[0] < -scene.dea.length_m / 2 else 1.0 / r
 
 
+def _y_progression(scene: Scene, lay: Layout, curve: int, count: int) -> float:
+    """Gmsh's progression coefficient along a through-thickness curve for
+    ``mesh.underside_grading`` = g: in the bottom layer, element sizes grow by r = g^(1/(n-1))
+    from the underside (y = y_bottom), inverted when the curve's parametrization starts at the top;
+    1 elsewhere."""
+    g = scene.mesh.underside_grading
+    if g == 1.0 or count < 2:
+        return 1.0
+    _, y0, _, _, y1, _ = gmsh.model.getBoundingBox(1, curve)
+    if abs(y0 - lay.y_bottom_m) > _TOL:
+        return 1.0
+    r = g ** (1.0 / (count - 1))
+    # gmsh grades along the curve's parametrization, which after the layers' fragment need not run
+    # from the curve's first boundary point (it does not on the layers' vertical edges)
+    lo, _ = gmsh.model.getParametrizationBounds(1, curve)
+    start = gmsh.model.getValue(1, curve, [lo[0]])
+    return r if start[1] < 0.5 * (y0 + y1) else 1.0 / r
+
+
 def x_intervals(scene: Scene) -> list[tuple[float, float, int, bool]]:
     """The DEA's x intervals as (x0, x1, divisions, graded): the tip zone ``mesh.tip_zone_m``
     from the free end with its own uniform ``mesh.tip_zone_divisions`` (× 2^level), and the
@@ -154,6 +173,8 @@ def _structure_dea(scene: Scene, lay: Layout, vols: dict) -> None:
         else:
             in_active = lay.active_y_m[0] - _TOL <= y0 and y1 <= lay.active_y_m[1] + _TOL
             count = n["active"] if in_active else n["passive"]
+            gmsh.model.mesh.setTransfiniteCurve(c, count + 1, "Progression", _y_progression(scene, lay, c, count))
+            continue
         gmsh.model.mesh.setTransfiniteCurve(c, count + 1)
     for s in surfaces:
         gmsh.model.mesh.setTransfiniteSurface(s)

@@ -178,3 +178,18 @@ def test_a_fidelity_entry_for_one_protocol_applies_only_under_that_protocol():
 def test_a_per_protocol_override_is_checked_even_when_it_does_not_apply(assignment, message):
     with pytest.raises(scenes.SceneError, match=message):
         scenes.load("coin_pull", overrides=(assignment,))          # a ramp scene: the entry is for another
+
+
+def test_a_key_added_after_the_datasets_is_written_only_when_set():
+    """``mesh.underside_grading`` came after the datasets: at its default the resolved scene
+    (what a dataset records and a resume compares) leaves it out, so a dataset made before it
+    still matches its scene; set, it is written and loads back. Broken once: the key always
+    written (the scene at the default then differed from the older one's TOML)."""
+    import tomllib
+    sc = scenes.load("coin_pull", setup="C3")
+    assert "underside_grading" not in sc.to_toml()
+    assert scenes.from_dict(tomllib.loads(sc.to_toml())).mesh.underside_grading == 1.0
+    graded = scenes.load("coin_pull", setup="C3", overrides=("mesh.underside_grading=4.0",))
+    assert tomllib.loads(graded.to_toml())["mesh"]["underside_grading"] == 4.0
+    assert scenes.from_dict(tomllib.loads(graded.to_toml())).mesh.underside_grading == 4.0
+    assert graded.to_toml() != sc.to_toml()

@@ -129,3 +129,39 @@ def test_a_rim_band_outside_the_width_names_the_key():
         scenes.load("coin_pull", overrides=("mesh.rim_band_m=[0.003, 0.02]",))
     with pytest.raises(scenes.SceneError, match=r"mesh\.tip_zone_m = 0\.03"):
         scenes.load("coin_pull", overrides=("mesh.tip_zone_m=0.03",))
+
+
+@pytest.mark.parametrize("active_side", ["top", "bottom"])
+def test_underside_grading_puts_the_smallest_elements_on_the_face_that_touches_the_coin(tmp_path, active_side):
+    """``mesh.underside_grading`` = 4 on 3 divisions: the bottom layer's node planes are spaced
+    s, 4^(1/3) s, 4^(2/3) s from the underside up (largest / smallest = 4), wherever the curve
+    starts; the layer above keeps its uniform divisions, and the volumes do not change. Seen to
+    fail: with the curve's direction taken from its first boundary point, not its
+    parametrization (after the layers' fragment they differ), the largest element sat on the
+    underside."""
+    from mpi4py import MPI
+    from deapull.fem_solver.compat import read_mesh
+    n = 3
+    sc = scenes.load("coin_pull", overrides=(f"dea.active_side='{active_side}'", f"mesh.n_active={n}",
+                                             f"mesh.n_passive={n}", "mesh.underside_grading=4.0"))
+    path, summary = write_mesh(sc, tmp_path)
+    d = sc.dea
+    assert summary["groups"]["active"]["volume_m3"] == pytest.approx(
+        d.length_m * d.width_m / 2 * d.active_thickness_m, rel=1e-9)          # the half model
+    mesh, _, _ = read_mesh(path, MPI.COMM_WORLD)
+    y = mesh.geometry.x[:, 1]
+    x = mesh.geometry.x[:, 0]
+    dea = x < 0.0
+    planes = np.unique(np.round(y[dea], 9))
+    bottom_h = d.passive_thickness_m if active_side == "top" else d.active_thickness_m
+    top_h = d.active_thickness_m if active_side == "top" else d.passive_thickness_m
+    y_b = planes[0]
+    # Q2 hexahedra: a node plane at each vertex plane and one midway; the vertex planes are every other one
+    vertex = planes[::2]
+    assert len(planes) == 2 * (2 * n) + 1
+    lower = np.diff(vertex[:n + 1])
+    r = 4.0 ** (1.0 / (n - 1))
+    s = bottom_h * (r - 1) / (r ** n - 1)
+    assert np.allclose(lower, s * r ** np.arange(n), rtol=1e-6), (lower, s)
+    assert np.isclose(vertex[n] - y_b, bottom_h)
+    assert np.allclose(np.diff(vertex[n:]), top_h / n, rtol=1e-6)
