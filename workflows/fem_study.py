@@ -182,6 +182,9 @@ REFINE = {REFINE_BASE: refined(),
           "layers2-patch2": refined(*layers(2), *tip_rim(8, 8)),
           "layers4-patch2": refined(*layers(4), *tip_rim(8, 8)),
           "layers2-tip2-rim4": refined(*layers(2), *tip_rim(8, 16)),
+          # two elements through the active stack, four through the passive layer graded 4:1 toward
+          # the underside (0.11 mm on the face that touches the coin; layers8 has 0.125 mm there)
+          "graded-a2-p4": refined("mesh.n_active=2", "mesh.n_passive=4", "mesh.underside_grading=4.0"),
           "level1": refined("mesh.level=1")}
 #: the layers ladder (one, two, four, eight elements per layer; refinement ratio 2)
 REFINE_LAYERS = (REFINE_BASE, "layers2", "layers4", "layers8")
@@ -373,18 +376,22 @@ def ladder_table(ref: dict) -> str:
 REFINE_TABLE = (("case", "case", ""), ("dofs", "dofs", "d"), ("wall s", "wall_s", ".0f"),
                 ("travel mm", "travel_mm", ".4f"), (f"vs {REFINE_BASE} %", "vs_base_pct", "+.2f"),
                 ("vs finest %", "vs_finest_pct", "+.2f"), ("x(t) vs finest %", "x_mae_finest_pct", ".2f"),
-                ("stroke mm", "stroke_mm", ".4f"), ("contact points (median)", "active_points", "d"))
+                ("x(0.9 s) mm", "x_09_mm", ".4f"), ("stroke mm", "stroke_mm", ".4f"),
+                ("contact points (median)", "active_points", "d"), ("max pen. points µm", "pen_qp_um", ".2f"))
 
 
 def refine_summary(out: Path) -> tuple[list[dict], list[str]]:
     """The ``refine`` study against its own cases: every case of it complete under ``out`` (run
     now or before), its travel, the change from ``resolved`` at the same step, and its travel
-    and x(t) (MAE, % of the finest travel) against the finest case there (the most dofs); the
-    DEA's stroke |tip_ux| at the end. Then the layers ladder (one, two, four, eight elements per
+    and x(t) (MAE, % of the finest travel) against the finest case there (the most dofs); |x| at
+    0.9 s (the meshes part in the ramp's last 0.1 s), the DEA's stroke |tip_ux| at the end and the
+    deepest contact point's penetration (the penalty's peak pressure over k_n: it grows as the
+    meshes resolve the rim's indentation). Then the layers ladder (one, two, four, eight elements per
     layer) through :func:`richardson`, each three consecutive levels on their own: an order
     that the first three do not share is not an asymptotic one, and the lines say so."""
     names = [n for n in REFINE if dataset.is_complete(out / n / "C3.nc", resolved_scene(REFINE[n]))]
-    runs = {n: dataset.read(out / n / "C3.nc", ("t", "x", "tip_ux"), optional=("n_contact",)) for n in names}
+    runs = {n: dataset.read(out / n / "C3.nc", ("t", "x", "tip_ux"), optional=("n_contact", "penetration_qp_m"))
+            for n in names}
     if not runs:
         return [], ["refine: no case of the study is complete under " + str(out)]
     travel = {n: float(np.max(np.abs(r.columns["x"]))) for n, r in runs.items()}
@@ -400,8 +407,10 @@ def refine_summary(out: Path) -> tuple[list[dict], list[str]]:
                      "vs_base_pct": 100 * (travel[n] / travel[REFINE_BASE] - 1) if REFINE_BASE in travel else math.nan,
                      "vs_finest_pct": 100 * (travel[n] / travel[finest] - 1),
                      "x_mae_finest_pct": 100 * mae / travel[finest],
+                     "x_09_mm": 1e3 * abs(float(np.interp(0.9, r.columns["t"], r.columns["x"]))),
                      "stroke_mm": 1e3 * abs(float(r.columns["tip_ux"][-1])),
-                     "active_points": int(np.median(nc)) if nc is not None else -1})
+                     "active_points": int(np.median(nc)) if nc is not None else -1,
+                     "pen_qp_um": 1e6 * float(np.max(r.columns.get("penetration_qp_m", np.nan)))})
     lines = [f"finest case: {finest} ({int(runs[finest].attrs['mesh_dofs']):,} dofs), travel "
              f"{1e3 * travel[finest]:.4f} mm"]
     ladder_travels = [travel.get(n) for n in REFINE_LAYERS]

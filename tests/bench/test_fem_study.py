@@ -131,6 +131,7 @@ def test_the_refine_study_compares_with_its_finest_case_and_fits_the_layers_trip
     assert math.isclose(by["layers4"]["vs_finest_pct"], 100 * (travels["layers4"] / travels["layers8"] - 1))
     assert math.isclose(by["layers8"]["vs_base_pct"], 100 * (travels["layers8"] / travels[fem_study.REFINE_BASE] - 1))
     assert math.isclose(by["layers4"]["stroke_mm"], 1.66)
+    assert math.isclose(by["layers4"]["x_09_mm"], 0.9e3 * travels["layers4"])
     [first, second] = [x for x in lines if x.startswith("layers ")]
     assert "no observed order" in first and fem_study.REFINE_BASE in first
     order, extrap = re.search(r"observed order ([\d.]+), Richardson travel ([\d.]+) mm", second).groups()
