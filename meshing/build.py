@@ -60,35 +60,34 @@ def _z_range(scene: Scene) -> tuple[float, float]:
     return (0.0 if scene.mesh.symmetry == "half_z" else -w / 2), w / 2
 
 
-def _x_progression(scene: Scene, curve: int, count: int) -> float:
-    """Gmsh's progression coefficient along an x curve for ``mesh.x_grading`` = g (element
-    length at the clamp / at the free end): r = g^(1/(n-1)) from the free end, inverted when
-    the curve starts at the clamp."""
-    g = scene.mesh.x_grading
-    if g == 1.0 or count < 2:
+def _progression(curve: int, count: int, ratio: float, axis: int, small_at: float) -> float:
+    """Gmsh's progression coefficient that grades ``curve`` (``count`` elements along ``axis``,
+    0 = x, 1 = y) by ``ratio`` = largest / smallest element, the smallest at the end nearer the
+    coordinate ``small_at``: r = ratio^(1/(n-1)), inverted when the curve's parametrization starts
+    at the other end. (Gmsh grades along the parametrization, which after the layers' fragment need
+    not run from the curve's first boundary point: it does not on the layers' vertical edges.)"""
+    if ratio == 1.0 or count < 2:
         return 1.0
-    r = g ** (1.0 / (count - 1))
-    start, _ = (gmsh.model.getValue(0, abs(t), []) for _, t in gmsh.model.getBoundary([(1, curve)], oriented=True))
-    return r if start[0] < -scene.dea.length_m / 2 else 1.0 / r
+    r = ratio ** (1.0 / (count - 1))
+    box = gmsh.model.getBoundingBox(1, curve)
+    lo, _ = gmsh.model.getParametrizationBounds(1, curve)
+    start = gmsh.model.getValue(1, curve, [lo[0]])[axis]
+    mid = 0.5 * (box[axis] + box[axis + 3])
+    return r if (start < mid) == (small_at < mid) else 1.0 / r
+
+
+def _x_progression(scene: Scene, curve: int, count: int) -> float:
+    """Along an x curve for ``mesh.x_grading`` (element length at the clamp / at the free end):
+    the small elements at the free end x = -L."""
+    return _progression(curve, count, scene.mesh.x_grading, 0, -scene.dea.length_m)
 
 
 def _y_progression(scene: Scene, lay: Layout, curve: int, count: int) -> float:
-    """Gmsh's progression coefficient along a through-thickness curve for
-    ``mesh.underside_grading`` = g: in the bottom layer, element sizes grow by r = g^(1/(n-1))
-    from the underside (y = y_bottom), inverted when the curve's parametrization starts at the top;
-    1 elsewhere."""
-    g = scene.mesh.underside_grading
-    if g == 1.0 or count < 2:
+    """Along a through-thickness curve for ``mesh.underside_grading``: in the bottom layer, the
+    small elements on the underside (y = y_bottom); 1 elsewhere."""
+    if abs(gmsh.model.getBoundingBox(1, curve)[1] - lay.y_bottom_m) > _TOL:
         return 1.0
-    _, y0, _, _, y1, _ = gmsh.model.getBoundingBox(1, curve)
-    if abs(y0 - lay.y_bottom_m) > _TOL:
-        return 1.0
-    r = g ** (1.0 / (count - 1))
-    # gmsh grades along the curve's parametrization, which after the layers' fragment need not run
-    # from the curve's first boundary point (it does not on the layers' vertical edges)
-    lo, _ = gmsh.model.getParametrizationBounds(1, curve)
-    start = gmsh.model.getValue(1, curve, [lo[0]])
-    return r if start[1] < 0.5 * (y0 + y1) else 1.0 / r
+    return _progression(curve, count, scene.mesh.underside_grading, 1, lay.y_bottom_m)
 
 
 def x_intervals(scene: Scene) -> list[tuple[float, float, int, bool]]:
