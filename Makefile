@@ -97,8 +97,8 @@ control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 ep
 
 # issue 24's FEM setting (docs/control.md, ninth session): the sweep's 0.4 V per step (a slow push
 # carries the heavy coins to the target), tapered within 0.1 mm of the target down to 0.1 V per step;
-# the f-memory f_a (it models the tip's dead band, so a coin parked short restarts; it cannot infer φ,
-# so it plans at the coin prior's median), a stand-off of 2 stds (the estimate averages down before
+# the f-memory f_a (it models the tip's dead band, so a coin parked short restarts; it plans at the
+# coin prior's median: at noise 1e-4 the data identify no field of φ, docs/control.md), a stand-off of 2 stds (the estimate averages down before
 # the last push; it gives way at the edge of the reach) and the bias filter's innovation check over 25
 # steps (the estimate follows the release of a pull-back). A plant whose ramp does not take its coin
 # to the target (on the resolved contact: C5, C6, C8 at -1 mm) is a row "unreachable" in the table.

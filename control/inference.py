@@ -107,6 +107,12 @@ class InferenceConfig:
         ``native`` in C (:func:`deapull.control.native.coin_predict`, f-coulomb; the same
         numbers to round-off), ``torch`` by autograd through the model, ``auto`` native
         where available. Adam always uses torch.
+    memory_refresh : int
+        A model with memory (f-memory: the tip's contact point and friction before each
+        transition, which depend on φ through the whole history): every this many updates
+        the buffer's memory is re-derived along all its rows under the current estimate
+        (between refreshes each new row starts from the previous row's step at the estimate
+        of its time). Each update fits φ through one step per row with that memory given.
     """
 
     fields: tuple | None = None
@@ -126,6 +132,7 @@ class InferenceConfig:
     prior: dict | None = None
     observation_std_m: float = 1e-9
     engine: str = "auto"
+    memory_refresh: int = 1
 
     def __post_init__(self):
         if not self.lr > 0 or self.batch_size < 1 or self.updates_per_step < 0 or not self.residual_scale_m > 0:
@@ -143,6 +150,8 @@ class InferenceConfig:
                 raise InputError(f"inference prior of {f!r}: {spec!r}; expected (median > 0, std of log > 0)")
         if not self.observation_std_m > 0:
             raise InputError(f"inference observation_std_m {self.observation_std_m} must be > 0")
+        if self.memory_refresh < 1:
+            raise InputError(f"inference memory_refresh {self.memory_refresh} must be at least 1 (updates)")
         if self.capacity is not None and self.capacity < 1:
             raise InputError(f"inference capacity {self.capacity} must be at least 1 (or None)")
 
@@ -161,8 +170,24 @@ class Predictor:
                              f"{model.kind!r} offers {sorted(model.capabilities) or 'nothing'}")
         self.model = model
 
-    def cache(self, x_prev, x, V, V_next, dt) -> dict:
+    @property
+    def memory(self) -> bool:
+        """Whether the model's step needs memory entries (:attr:`Surrogate.plan_memory`) that
+        the buffer carries along its rows."""
+        return bool(self.model.plan_memory)
+
+    def cache(self, x_prev, x, V, V_next, dt, memory=None) -> dict:
+        if self.memory:
+            return self.model.inference_columns(x_prev, x, V, V_next, dt, memory)
         return self.model.inference_columns(x_prev, x, V, V_next, dt)
+
+    def memory_after(self, c: dict, phi: Phi) -> torch.Tensor:
+        """Memory kinds: the entries after each row's transition."""
+        return self.model.memory_after(c, phi)
+
+    def memory_along(self, c: dict, phi: Phi) -> torch.Tensor:
+        """Memory kinds: the entries before each of consecutive rows, re-derived from the first."""
+        return self.model.memory_along(c, phi)
 
     def predict(self, c: dict, phi: Phi) -> torch.Tensor:
         """x̂_{t+1} of the cached rows ``c`` for the coin ``phi``."""
@@ -172,6 +197,10 @@ class Predictor:
         """How far (m/s) a row the model holds stuck is from slipping (None for a kind without
         a stick state)."""
         return self.model.stick_shortfall(c, phi)
+
+    def predict_with_shortfall(self, c: dict, phi: Phi, shortfall: bool):
+        """(:meth:`predict`, :meth:`stick_shortfall` if ``shortfall`` else None) in one go."""
+        return self.model.predict_with_shortfall(c, phi, shortfall)
 
 
 class ReplayBuffer:
@@ -185,10 +214,13 @@ class ReplayBuffer:
     def __len__(self) -> int:
         return self.target.shape[0]
 
-    def add(self, x_prev: float, x: float, x_next: float, V: float, V_next: float, dt: float) -> None:
-        """One transition: positions x̃_{t−1}, x̃_t, x̃_{t+1} (m), voltages V_t, V_{t+1} (V)."""
+    def add(self, x_prev: float, x: float, x_next: float, V: float, V_next: float, dt: float,
+            memory: torch.Tensor | None = None) -> None:
+        """One transition: positions x̃_{t−1}, x̃_t, x̃_{t+1} (m), voltages V_t, V_{t+1} (V) and,
+        for a model with memory, its entries before the transition ((1, k); None: at rest)."""
         row = torch.tensor([[x_prev, x, V, V_next, dt]], dtype=torch.float64)
-        new = self.predictor.cache(*row.unbind(-1))
+        new = self.predictor.cache(*row.unbind(-1), memory=memory) if self.predictor.memory \
+            else self.predictor.cache(*row.unbind(-1))
         self.columns = new if not self.columns else {k: torch.cat([self.columns[k], new[k]]) for k in new}
         self.target = torch.cat([self.target, torch.tensor([x_next], dtype=torch.float64)])
         if self.capacity is not None and len(self) > self.capacity:
@@ -205,7 +237,8 @@ class OnlineInference:
     Parameters
     ----------
     model : Surrogate
-        f_a (kind ``f-coulomb`` or ``f``); a float64 copy is used, its weights frozen.
+        f_a (a kind with the ``infer`` capability: ``f-coulomb``, ``f-memory`` or ``f``); a
+        float64 copy is used, its weights frozen.
     config : InferenceConfig
     dt : float
         The control step Δt (s).
@@ -245,6 +278,7 @@ class OnlineInference:
         self.buffer = ReplayBuffer(self.predictor, cfg.capacity)
         self.generator = torch.Generator().manual_seed(cfg.seed)
         self.history: list = []          # (x̃, V) observed so far
+        self.tip = None                  # a memory model's entries before the next transition (None: at rest)
         self.log: list = []
         self.iteration = 0
         self.moved = False
@@ -276,8 +310,20 @@ class OnlineInference:
         if len(self.history) >= 2:
             (x1, V1), (x2, V2) = self.history[-2], self.history[-1]
             x0 = self.history[-3][0] if len(self.history) >= 3 else x1   # u_0 = 0: at rest
-            self.buffer.add(x0, x1, x2, V1, V2, self.dt)
+            self.buffer.add(x0, x1, x2, V1, V2, self.dt, self.tip)
+            if self.predictor.memory:      # where the tip goes in that transition, at today's estimate
+                last = {k: v[-1:] for k, v in self.buffer.columns.items()}
+                self.tip = self.predictor.memory_after(last, self.phi)
         del self.history[:-3]
+
+    def refresh_memory(self) -> None:
+        """A memory model's entries along the whole buffer re-derived at the current estimate
+        (:attr:`InferenceConfig.memory_refresh`); the next transition starts from the last."""
+        if not self.predictor.memory or not len(self.buffer):
+            return
+        columns, phi = self.buffer.columns, self.phi
+        columns["memory"] = self.predictor.memory_along(columns, phi)
+        self.tip = self.predictor.memory_after({k: v[-1:] for k, v in columns.items()}, phi)
 
     def residuals(self, columns: dict, target: torch.Tensor, phi: Phi) -> torch.Tensor:
         """The residuals whose mean square is the loss: eq. 9's position errors in units of
@@ -291,8 +337,8 @@ class OnlineInference:
         units); it is zero wherever the model lets the coin slip.
         """
         cfg = self.config
-        r = (self.predictor.predict(columns, phi) - target) / cfg.residual_scale_m
-        shortfall = self.predictor.stick_shortfall(columns, phi) if cfg.stick_hinge else None
+        pred, shortfall = self.predictor.predict_with_shortfall(columns, phi, cfg.stick_hinge)
+        r = (pred - target) / cfg.residual_scale_m
         if shortfall is None:
             return r
         moving = ((target - columns["s"][..., 0]).abs() > cfg.motion_threshold_m).double()
@@ -439,6 +485,8 @@ class OnlineInference:
             step = self._lm_step if self.config.optimizer == "lm" else self._adam_step
             loss = step(columns, target)
             self.iteration += 1
+            if self.predictor.memory and self.iteration % self.config.memory_refresh == 0:
+                self.refresh_memory()
             record = {"iteration": self.iteration, "loss": loss, "transitions": len(self.buffer), **self.estimate()}
             self.log.append(record)
             log.debug("inference %d: loss %.3g, %s", self.iteration, loss, self.estimate())

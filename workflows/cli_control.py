@@ -197,10 +197,10 @@ def register_dagger(sub) -> None:
                    help="the MPC's smallest |dV| per step (V; default 0.1, as make control-fem)")
     p.add_argument("--model-kind", default=None,
                    help="f_a's kind, retrained every round: f-coulomb or f-memory (default: --mpc-model's kind, "
-                        "else f-coulomb; f-memory needs --mpc-no-infer)")
+                        "else f-coulomb)")
     p.add_argument("--phi-prior", default="coins", help="the MPC's inference prior: none or coins (default)")
     p.add_argument("--mpc-no-infer", action="store_true",
-                   help="plan with the coin prior's median, no online inference (needed by an f-memory f_a)")
+                   help="plan with the coin prior's median, no online inference")
     p.add_argument("--mpc-standoff", type=float, default=0.0, help="the MPC's stand-off (stds; default 0)")
     p.add_argument("--mpc-innovation-window", type=int, default=0,
                    help="the bias filter's innovation check over the last N steps (default 0: off; make "

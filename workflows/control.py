@@ -240,7 +240,7 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
 
 
 def _require_inference(folder: Path) -> None:
-    """The MPC infers φ online with its own f_a: refuse a kind that cannot (f-memory) before any
+    """The MPC infers φ online with its own f_a: refuse a kind that cannot before any
     model is loaded, naming the options that plan with a given φ instead."""
     from deapull.surrogate import store
     from deapull.surrogate.models import registry

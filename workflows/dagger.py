@@ -50,8 +50,8 @@ class DaggerConfig:
     ``control`` is the closed-loop experiment of each round (:class:`ControlConfig`, MPC on FEM
     plants); its ``mpc_model``, ``out``, ``save_fem_runs`` and ``run_tag`` are set per round.
     ``kind`` is f_a's model kind, retrained every round: None means the kind of ``model`` when
-    one is given, else f-coulomb. A kind that cannot infer φ online (f-memory) plans with the
-    prior's median: it needs ``control.mpc_no_infer``.
+    one is given, else f-coulomb. A kind that cannot infer φ online (capability ``infer``) plans
+    with the prior's median: it needs ``control.mpc_no_infer``.
     """
 
     control: object

@@ -184,11 +184,24 @@ class Surrogate(nn.Module):
         before the step and the memory entries of :attr:`plan_memory` (SI units)."""
         raise NotImplementedError(f"model kind {self.kind!r} has no planning memory")
 
-    def inference_columns(self, x_prev, x, V, V_next, dt) -> dict:
+    def inference_columns(self, x_prev, x, V, V_next, dt, memory=None) -> dict:
         """``infer``: what x̂_{t+1}(φ) of buffered transitions needs that does not depend on φ: a dict
         of float64 columns with at least ``s`` = (x, u) and ``a`` = (V', Δt) (the inference reads
-        them), and whatever else the kind's :meth:`predict_columns` uses."""
+        them), and whatever else the kind's :meth:`predict_columns` uses. A kind with memory
+        (:attr:`plan_memory`) takes each row's memory entries before the transition (n, k), SI
+        units, as ``memory`` (None: the DEA at rest at ``V``, :meth:`plan_start`) and keeps them
+        in the column ``memory``."""
         raise NotImplementedError(f"model kind {self.kind!r} cannot infer φ")
+
+    def predict_with_shortfall(self, columns: dict, phi: Phi, shortfall: bool = True):
+        """``infer``: (:meth:`predict_columns`, :meth:`stick_shortfall` or None) together (a kind
+        whose step is a solve overrides it to solve once)."""
+        return self.predict_columns(columns, phi), (self.stick_shortfall(columns, phi) if shortfall else None)
+
+    def memory_after(self, columns: dict, phi: Phi) -> torch.Tensor:
+        """``infer`` with memory: the memory entries (n, k) after each row's transition for the
+        coin ``phi``, without gradients (what the next transition starts from)."""
+        raise NotImplementedError(f"model kind {self.kind!r} has no memory to track")
 
     def predict_columns(self, columns: dict, phi: Phi):
         """``infer``: x̂_{t+1} of :meth:`inference_columns`' rows for the coin ``phi``."""

@@ -198,28 +198,30 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     assert any(s is None or s > 40 for s in steps[False][1:]), steps
 
 
-def test_the_cli_plans_with_an_f_memory_model_and_refuses_to_infer_with_it(trained, sweep_dir, fs1_dir, tmp_path,
-                                                                          capsys):
-    """``deapull control --mpc-model <f-memory>``: f-memory cannot infer φ, so the default (online
-    inference) exits 2 with one line naming the options that plan with a given φ, before any
-    output; with ``--mpc-no-infer --phi-prior coins`` the compiled f-memory MPC runs the episode.
-    Broken once (the check in workflows.control.check removed): the refusal came only from
-    inside the first episode, without naming the options ("assert (1 == 1 and '--mpc-no-infer'
-    in \"deapull control: error: online inference needs a model that can infer φ ...\")")."""
+def test_the_cli_plans_and_infers_with_an_f_memory_model(trained, sweep_dir, fs1_dir, tmp_path):
+    """``deapull control --mpc-model <f-memory>``: by default the MPC infers φ online with the
+    f-memory f_a (its buffer carries the tip's memory) and the CSV records the estimate, inside
+    the physical box; with ``--mpc-no-infer --phi-prior coins`` the compiled f-memory MPC plans
+    at the prior's median and records none. Broken once (the ``infer`` capability taken off
+    f-memory): the default run exited 2 ("assert 2 == 0")."""
     import csv
 
+    from deapull.control.inference import BOUNDS
     from deapull.surrogate import store
     from deapull.workflows.cli import main
     result = trained("f-memory")
     folder = store.save(result.model, tmp_path / "fmem", result.summary(), result.history)
     argv = ["control", "--policy", "mpc", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--plant-model",
-            str(fs1_dir), "--mpc-model", str(folder), "--out", str(tmp_path / "out"), "--no-progress",
+            str(fs1_dir), "--mpc-model", str(folder), "--no-progress",
             "--episodes", "1", "--noise", "0", "--target-mm", "-0.2", "--max-steps", "300", "--hold", "20"]
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "--mpc-no-infer" in err and "'f-memory'" in err, err
-    assert not (tmp_path / "out").exists()
-    assert main(argv + ["--mpc-no-infer", "--phi-prior", "coins"]) == 0
-    with open(tmp_path / "out" / "control.csv", newline="") as f:
-        (row,) = list(csv.DictReader(f))
-    assert row["reached"] == "True" and row["inferred_mass_kg"] == "", row
+    for name, extra in (("infer", []), ("fixed", ["--mpc-no-infer", "--phi-prior", "coins"])):
+        assert main(argv + ["--out", str(tmp_path / name), *extra]) == 0
+        with open(tmp_path / name / "control.csv", newline="") as f:
+            (row,) = list(csv.DictReader(f))
+        assert row["reached"] == "True", row
+        if name == "fixed":
+            assert row["inferred_mass_kg"] == "", row
+        else:
+            for field, (lo, hi) in BOUNDS.items():
+                if field != "v_threshold_V":
+                    assert lo <= float(row[f"inferred_{field}"]) <= hi, (field, row)

@@ -46,7 +46,6 @@ def test_aggregation_adds_the_closed_loop_runs_and_lowers_the_model_error_on_a_n
     (["--train", "C3,C9"], "C9.nc not found"),
     (["--mpc-model", "{tmp}/nowhere"], "--mpc-model"),
     (["--mpc-standoff", "-1"], "--mpc-standoff"),
-    (["--model-kind", "f-memory"], "--mpc-no-infer"),
     (["--model-kind", "nn"], "cannot plan"),
     (["--mpc-innovation-window", "-1"], "--mpc-innovation-window"),
 ])
