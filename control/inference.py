@@ -294,6 +294,11 @@ class OnlineInference:
         return Phi(**values)
 
     @property
+    def transitions(self) -> int:
+        """Transitions in the buffer."""
+        return len(self.buffer)
+
+    @property
     def phi(self) -> Phi:
         """The current estimate (float64 0-d tensors, no gradient)."""
         return self._phi(detach=True)
@@ -468,6 +473,18 @@ class OnlineInference:
             if jacobian:
                 J = torch.cat([J, weight[:, None] * dshort[:, columns_of]])
         return r, J
+
+    def misfit_m(self) -> float:
+        """RMS position residual (m) of the one-step predictions over the buffer at the current φ."""
+        columns, target = self.buffer.batch(torch.arange(len(self.buffer)))
+        if not len(target):
+            return 0.0
+        return float((self.predictor.predict(columns, self.phi) - target).pow(2).mean().sqrt())
+
+    def crlb(self, noise_std_m: float) -> dict:
+        """Each inferred field's Cramér–Rao bound on its relative error (:func:`identifiability`)."""
+        with torch.enable_grad():
+            return identifiability(self, noise_std_m=noise_std_m)["crlb_relative"]
 
     def update(self, steps: int | None = None) -> dict | None:
         """``steps`` (default ``updates_per_step``) updates of log φ on a random batch each;

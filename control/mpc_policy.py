@@ -87,7 +87,8 @@ import torch
 from deapull.control import mpc, native
 from deapull.control.dynamics import COSTS, U_UNIT_M_S, X_UNIT_M, CoinDynamics, coin_cost
 from deapull.control.filters import FILTERS, BiasKalman, ModelKalman
-from deapull.control.inference import InferenceConfig, OnlineInference, identifiability
+from deapull.control.inference import InferenceConfig, OnlineInference
+from deapull.control.rollout_inference import RolloutInference
 from deapull.control.policies import Policy
 from deapull.errors import InputError
 from deapull.surrogate.phi import Phi
@@ -107,6 +108,10 @@ def make_dynamics(model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float, e
     return CoinDynamics(model, phi, dt, dv_max_V, v_max_V)
 
 
+#: what the online inference fits φ to (:attr:`MPCConfig.infer_loss`)
+INFER_LOSSES = ("step", "rollout")
+
+
 @dataclass(frozen=True)
 class MPCConfig:
     """Settings of the MPC policy.
@@ -124,6 +129,13 @@ class MPCConfig:
         Infer φ online (Algorithm 2) and plan with the current estimate; otherwise plan with
         the φ given to the policy.
     inference : InferenceConfig
+    infer_loss : {"step", "rollout"}
+        What φ is fitted to: ``step`` the paper's one-step predictions from the observed state
+        (Algorithm 2, :class:`~deapull.control.inference.OnlineInference`); ``rollout`` f_a's
+        open-loop rollout of the whole episode under the applied voltages against every observed
+        position (:class:`~deapull.control.rollout_inference.RolloutInference`: no noise in its
+        inputs; one update every ``infer_every`` steps).
+    infer_every : int
     engine : {"auto", "native", "torch"}
         Where f_a's steps, Jacobians and the iLQR run: ``native`` the compiled solver of
         :mod:`deapull.control.native` (f-coulomb and f-memory; the same plans to round-off,
@@ -202,6 +214,8 @@ class MPCConfig:
     terminal_weight: float = 1.0
     infer: bool = True
     inference: InferenceConfig = field(default_factory=lambda: InferenceConfig(optimizer="lm"))
+    infer_loss: str = "step"
+    infer_every: int = 10
     engine: str = "auto"
     filter: str = "none"
     process_std_m: float = 1e-6
@@ -229,6 +243,13 @@ class MPCConfig:
             raise InputError(f"MPC filter {self.filter!r}: choose one of {', '.join(FILTERS)}")
         if self.engine not in ENGINES:
             raise InputError(f"MPC engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
+        if self.infer_loss not in INFER_LOSSES:
+            raise InputError(f"--infer-loss {self.infer_loss!r}: choose one of {', '.join(INFER_LOSSES)}")
+        if int(self.infer_every) != self.infer_every or self.infer_every < 1:
+            raise InputError(f"--infer-every {self.infer_every!r}: must be an integer >= 1 (control steps)")
+        if self.infer and self.infer_loss == "rollout" and self.inference.optimizer != "lm":
+            raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, "
+                             f"not {self.inference.optimizer!r}")
         if not 0 <= self.hold_band <= 1:
             raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
         for name in ("hold_stds", "recentre_stds", "recentre_band", "creep_V", "approach_m", "max_rate_V",
@@ -296,7 +317,11 @@ class MPCPolicy(Policy):
             # and the prior's smallest residual std is the noise's
             settings = replace(cfg.inference, motion_threshold_m=max(cfg.inference.motion_threshold_m, 3 * noise),
                                observation_std_m=max(cfg.inference.observation_std_m, noise))
-            if self.inference is None or self.inference.dt != self.dt or self.inference.config != settings:
+            if cfg.infer_loss == "rollout":
+                self.inference = RolloutInference(self.model, settings, self.dt, float(spec.dv_max_V),
+                                                  self.v_max_V, cfg.infer_every)
+            elif not isinstance(self.inference, OnlineInference) or self.inference.dt != self.dt \
+                    or self.inference.config != settings:
                 self.inference = OnlineInference(self.model, settings, self.dt)
             self.inference.reset()
         self._crlb = {f"crlb_{f}": math.nan for f in self.inference.fields} if cfg.infer else {}
@@ -324,19 +349,14 @@ class MPCPolicy(Policy):
         Fisher information at the current φ and :meth:`_residual_std` (inf where the data do
         not identify a field)."""
         every = self.config.crlb_every
-        if every and self.inference.moved and len(self.inference.buffer) % every == 0:
-            with torch.enable_grad():       # act runs under no_grad; the bound needs ∂x̂/∂log φ
-                info = identifiability(self.inference, noise_std_m=self._residual_std())
-            self._crlb = {f"crlb_{f}": v for f, v in info["crlb_relative"].items()}
+        if every and self.inference.moved and self.inference.transitions % every == 0:
+            self._crlb = {f"crlb_{f}": v for f, v in self.inference.crlb(self._residual_std()).items()}
 
     def _residual_std(self) -> float:
         """The std of one transition's position residual (m) that the bound assumes: the larger of
         the observation noise and the model's RMS misfit over the buffer at the current φ (as
         in weighted least squares with unknown variance; 1 nm at least)."""
-        inf = self.inference
-        columns, target = inf.buffer.batch(torch.arange(len(inf.buffer)))
-        misfit = float((inf.predictor.predict(columns, inf.phi) - target).pow(2).mean().sqrt())
-        return max(self.spec.noise_std_m, misfit, 1e-9)
+        return max(self.spec.noise_std_m, self.inference.misfit_m(), 1e-9)
 
     def _planning_phi(self) -> Phi:
         """The φ the plan uses. Without a prior, the inference's estimate (the paper). With one,

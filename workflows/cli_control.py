@@ -25,6 +25,7 @@ def cmd_control(args) -> int:
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, unreachable=args.unreachable, infer_optimizer=args.infer_optimizer,
+        infer_loss=args.infer_loss, infer_every=args.infer_every, plant_phi=control.parse_plant_phi(args.plant_phi),
         **mpc_settings(args),
         **({} if args.mpc_recentre is None else {"mpc_recentre": args.mpc_recentre}),
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
@@ -86,6 +87,9 @@ def register(sub) -> None:
                         "then held for --hold steps, e.g. --setpoints-mm=-0.5,-1.0,-0.7 (push, push, pull back; with '=', "
                         "since the value starts with '-')")
     p.add_argument("--data", default="data", help="folder with <setup>.nc: the surrogate plants' coin φ (data)")
+    p.add_argument("--plant-phi", default=None, metavar="FIELD=VALUE,...",
+                   help="surrogate plants: simulate this coin instead of the setup's (mass_kg, mu_b, mu_t in SI "
+                        "units, e.g. mass_kg=2.07e-3,mu_b=0.25: a coin the inference's prior does not centre on)")
     p.add_argument("--plant-model", default="out/models/fs{n}",
                    help="surrogate plant model folder; {setup} -> C1, {n} -> 1 (default out/models/fs{n})")
     p.add_argument("--mpc-model", default="out/models/fa",
@@ -134,6 +138,12 @@ def register(sub) -> None:
     p.add_argument("--infer-optimizer", default="lm", choices=("lm", "adam"),
                    help="the online inference's optimiser: lm (Levenberg-Marquardt, default) or adam (the paper's "
                         "Adam, Algorithm 2)")
+    p.add_argument("--infer-loss", default="step", choices=("step", "rollout"),
+                   help="what φ is fitted to: step (the paper's one-step predictions from the observed state, "
+                        "default) or rollout (f_a's open-loop rollout of the whole episode against every observed "
+                        "position: no noise in the model's inputs; docs/control.md)")
+    p.add_argument("--infer-every", type=int, default=10, metavar="N",
+                   help="--infer-loss rollout: control steps between updates (default 10)")
     p.add_argument("--sac-dir", default="out/models/sac{n}",
                    help="trained SAC policy folder; trained there on the surrogate plant when absent "
                         "(default out/models/sac{n})")

@@ -31,7 +31,7 @@ import importlib.util
 import logging
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +42,7 @@ from deapull import scene as scenes
 from deapull.control.dynamics import COSTS
 from deapull.control.harness import PHI_FIELDS, Bench, Episode, Task, run_episode
 from deapull.control.inference import COIN_PRIOR, InferenceConfig
-from deapull.control.mpc_policy import MPCConfig
+from deapull.control.mpc_policy import INFER_LOSSES, MPCConfig
 from deapull.control.policies import SAC_FILE
 from deapull.surrogate import store
 from deapull.surrogate.data import load_setup
@@ -119,6 +119,9 @@ class ControlConfig:
     mpc_recentre: float = MPCConfig.recentre_stds
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
+    infer_loss: str = "step"
+    infer_every: int = 10
+    plant_phi: dict | None = None
     sac_dir: str = "out/models/sac{n}"
     sac_steps: int = 30000
     scene: str = "coin_pull"
@@ -204,6 +207,7 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
         if not (math.isfinite(t) and t < 0):
             raise InputError(f"--setpoints-mm {1e3 * t!r}: every setpoint must be a finite number < 0 (mm; the "
                              "coin moves toward -x)")
+    check_plant_phi(config)
     unreachable = check_fem(config) if any(p.kind == "fem" for p in config.plants) else {}
     for spec in config.plants:
         if _needs_surrogate(config, spec):
@@ -227,6 +231,13 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
             raise InputError(f"--mpc-creep {config.mpc_creep_V!r}: must be a finite number > 0 (V per step)")
         if not (math.isfinite(config.mpc_approach_m) and config.mpc_approach_m >= 0):
             raise InputError(f"--mpc-approach-mm {1e3 * config.mpc_approach_m!r}: must be a finite number >= 0 (mm)")
+        if config.infer_loss not in INFER_LOSSES:
+            raise InputError(f"--infer-loss {config.infer_loss!r}: choose one of {', '.join(INFER_LOSSES)}")
+        if int(config.infer_every) != config.infer_every or config.infer_every < 1:
+            raise InputError(f"--infer-every {config.infer_every!r}: must be an integer >= 1 (control steps)")
+        if config.infer_loss == "rollout" and config.infer_optimizer != "lm":
+            raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, not "
+                             f"{config.infer_optimizer!r}")
         if config.mpc_no_infer and (config.phi_prior != "coins" or config.mpc_oracle):
             raise InputError("--mpc-no-infer plans with the prior's median: it needs --phi-prior coins and no "
                              "--mpc-oracle")
@@ -300,6 +311,40 @@ def _needs_surrogate(config: ControlConfig, spec: PlantSpec) -> bool:
 
 # --- the configuration, resolved once ------------------------------------------------------
 
+#: the coin fields ``--plant-phi`` may set on surrogate plants (SI units)
+PLANT_PHI_FIELDS = ("mass_kg", "mu_b", "mu_t")
+
+
+def parse_plant_phi(text: str | None) -> dict | None:
+    """``mass_kg=2.07e-3,mu_b=0.25`` → {field: value}; checked by :func:`check_plant_phi`."""
+    if not text:
+        return None
+    out = {}
+    for item in text.split(","):
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value) if sep else math.nan
+        except ValueError:
+            out[name.strip()] = math.nan
+    return out
+
+
+def check_plant_phi(config: ControlConfig) -> None:
+    """``--plant-phi``: known fields, finite positive values, and surrogate plants only."""
+    if not config.plant_phi:
+        return
+    for name, value in config.plant_phi.items():
+        if name not in PLANT_PHI_FIELDS:
+            raise InputError(f"--plant-phi {name!r}: unknown field; choose from {', '.join(PLANT_PHI_FIELDS)} "
+                             f"(SI units, e.g. mass_kg=2.07e-3,mu_b=0.25)")
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"--plant-phi {name}={value!r}: must be a finite number > 0")
+    fem = [p.name for p in config.plants if p.kind == "fem"]
+    if fem:
+        raise InputError(f"--plant-phi sets the coin of surrogate plants only, not {', '.join(fem)} (an FEM "
+                         f"plant's coin: --set coin.density_kg_m3=..., coin.mu_b=..., coin.mu_t=...)")
+
+
 def task_of(config: ControlConfig) -> Task:
     """What every episode of ``config`` asks: its setpoints, tolerance, |ΔV| limit and steps."""
     return Task(config.target_m, config.task, config.tolerance_m, config.dv_max_V, config.max_steps,
@@ -321,6 +366,8 @@ def resolve(config: ControlConfig) -> Bench:
     models = {folder: store.load(folder)[0] for folder in dict.fromkeys(folders)}
     surrogates = {setup: (models[folder], models[folder].phi_of(load_setup(config.data / f"{setup}.nc")))
                   for setup, folder in surrogate_dirs.items()}
+    if config.plant_phi:                    # a coin of the user's (--plant-phi), on every surrogate plant
+        surrogates = {setup: (model, replace(phi, **config.plant_phi)) for setup, (model, phi) in surrogates.items()}
     fem_scenes = {spec.setup: scenes.load(config.scene, setup=spec.setup, overrides=config.overrides)
                   for spec in config.plants if spec.kind == "fem"}
     mpc_model = models[mpc_dir] if mpc else None
@@ -348,7 +395,8 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
                      innovation_window=0 if plain else config.mpc_innovation_window,
                      reach_gate=config.mpc_reach_gate,
                      recentre_stds=0.0 if plain else config.mpc_recentre,
-                     inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior))
+                     inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior),
+                     infer_loss=config.infer_loss, infer_every=config.infer_every)
 
 
 # --- the experiment ------------------------------------------------------------------------

@@ -289,3 +289,55 @@ def test_an_f_memory_f_a_carries_the_tips_memory_and_recovers_the_known_phi(memo
     with torch.enable_grad():
         info = identifiability(inf, TRUTH, noise_std_m=1e-6)
     assert all(b < 0.5 for b in info["crlb_relative"].values()), info["crlb_relative"]
+
+
+def test_the_rollout_loss_recovers_the_frictions_and_is_not_biased_by_noise(coulomb, observations):
+    """``--infer-loss rollout`` (:class:`RolloutInference`): (μ_b, μ_t) fitted to f_a's open-loop
+    rollout of the whole record, m_c given. Noise-free it recovers them exactly. At 10 µm of
+    noise it lands within 10 % (its Cramér–Rao bounds here: 7.5 % and 5.9 %), while the paper's
+    one-step loss on the same record, whose inputs (the position and a velocity differenced
+    from two noisy positions) carry the noise, is biased by more than 30 % (errors in variables)
+    and its bound on μ_b is over 5× the rollout's. (Inferring m_c too, the rollout finds a light
+    coin with both μ near 1.07 that traces the same slide to 1 nm: the mass is not identified by
+    this record, and the policy anchors it at the prior.) Broken once: the rollout started one
+    observation late (from the second voltage): noise-free the estimate stopped 8–10 % off the
+    truth ("assert 0.1026 < 1e-06")."""
+    from deapull.control.rollout_inference import RolloutInference
+    initial = {"mass_kg": TRUTH.value("mass_kg"), "mu_b": 0.15, "mu_t": 0.4}
+
+    def config(noise):
+        return InferenceConfig(optimizer="lm", fields=("mu_b", "mu_t"), initial=initial,
+                               observation_std_m=max(noise, 1e-9))
+
+    def rollout_run(obs, noise):
+        inf = RolloutInference(coulomb, config(noise), DT, dv_max_V=5.0, v_max_V=400.0, every=10)
+        for x, V in obs:
+            inf.observe(x, V)
+            inf.update()
+        inf.update(20)
+        return inf
+
+    exact = rollout_run(observations, 0.0)
+    assert max(relative_errors(exact).values()) < 1e-6, relative_errors(exact)
+    noisy_obs = noisy(observations, 1e-5)
+    by_rollout = rollout_run(noisy_obs, 1e-5)
+    by_step = run(coulomb, noisy_obs, config(1e-5))
+    assert max(relative_errors(by_rollout).values()) < 0.1, relative_errors(by_rollout)
+    assert max(relative_errors(by_step).values()) > 0.3, relative_errors(by_step)
+    assert by_rollout.crlb(1e-5)["mu_b"] < 0.2 * by_step.crlb(1e-5)["mu_b"]
+
+
+def test_the_cli_refuses_bad_inference_and_plant_coin_settings(sweep_dir, tmp_path, capsys):
+    """``--infer-loss``, ``--infer-every`` and ``--plant-phi`` are checked before any model loads,
+    naming the argument and what is allowed; nothing is written."""
+    from deapull.workflows.cli import main
+    base = ["control", "--policy", "mpc", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--episodes", "1",
+            "--out", str(tmp_path / "out"), "--no-progress"]
+    for extra, named in ((["--infer-loss", "rollout", "--infer-optimizer", "adam"], "--infer-optimizer lm"),
+                         (["--infer-every", "0"], "--infer-every 0"),
+                         (["--plant-phi", "mass_g=2"], "mass_g"),
+                         (["--plant-phi", "mu_b=-0.2"], "mu_b=-0.2"),
+                         (["--plant-phi", "mu_b=nan"], "mu_b=nan")):
+        assert main(base + extra) == 2, extra
+        assert named in capsys.readouterr().err, (extra, named)
+        assert not (tmp_path / "out").exists()
