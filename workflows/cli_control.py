@@ -26,6 +26,7 @@ def cmd_control(args) -> int:
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, unreachable=args.unreachable, infer_optimizer=args.infer_optimizer,
         infer_loss=args.infer_loss, infer_every=args.infer_every, plant_phi=control.parse_plant_phi(args.plant_phi),
+        infer_fields=None if args.infer_fields is None else tuple(f.strip() for f in args.infer_fields.split(",") if f.strip()),
         **mpc_settings(args),
         **({} if args.mpc_recentre is None else {"mpc_recentre": args.mpc_recentre}),
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
@@ -142,6 +143,9 @@ def register(sub) -> None:
                    help="what φ is fitted to: step (the paper's one-step predictions from the observed state, "
                         "default) or rollout (f_a's open-loop rollout of the whole episode against every observed "
                         "position: no noise in the model's inputs; docs/control.md)")
+    p.add_argument("--infer-fields", default=None, metavar="FIELD,...",
+                   help="the fields of φ to infer (mass_kg, mu_b, mu_t; default all the model uses); the rest are "
+                        "planned at the prior's median (with --phi-prior coins)")
     p.add_argument("--infer-every", type=int, default=10, metavar="N",
                    help="--infer-loss rollout: control steps between updates (default 10)")
     p.add_argument("--sac-dir", default="out/models/sac{n}",

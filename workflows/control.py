@@ -41,7 +41,7 @@ from deapull import provenance
 from deapull import scene as scenes
 from deapull.control.dynamics import COSTS
 from deapull.control.harness import PHI_FIELDS, Bench, Episode, Task, run_episode
-from deapull.control.inference import COIN_PRIOR, InferenceConfig
+from deapull.control.inference import COIN_PRIOR, INITIAL, InferenceConfig
 from deapull.control.mpc_policy import INFER_LOSSES, MPCConfig
 from deapull.control.policies import SAC_FILE
 from deapull.surrogate import store
@@ -122,6 +122,7 @@ class ControlConfig:
     infer_loss: str = "step"
     infer_every: int = 10
     plant_phi: dict | None = None
+    infer_fields: tuple | None = None
     sac_dir: str = "out/models/sac{n}"
     sac_steps: int = 30000
     scene: str = "coin_pull"
@@ -235,6 +236,10 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
             raise InputError(f"--infer-loss {config.infer_loss!r}: choose one of {', '.join(INFER_LOSSES)}")
         if int(config.infer_every) != config.infer_every or config.infer_every < 1:
             raise InputError(f"--infer-every {config.infer_every!r}: must be an integer >= 1 (control steps)")
+        unknown = [f for f in config.infer_fields or () if f not in PLANT_PHI_FIELDS]
+        if unknown or (config.infer_fields is not None and not config.infer_fields):
+            raise InputError(f"--infer-fields {','.join(config.infer_fields or ())!r}: choose one or more of "
+                             f"{', '.join(PLANT_PHI_FIELDS)} (the rest stay at the prior's median)")
         if config.infer_loss == "rollout" and config.infer_optimizer != "lm":
             raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, not "
                              f"{config.infer_optimizer!r}")
@@ -395,8 +400,18 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
                      innovation_window=0 if plain else config.mpc_innovation_window,
                      reach_gate=config.mpc_reach_gate,
                      recentre_stds=0.0 if plain else config.mpc_recentre,
-                     inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior),
+                     inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior,
+                                               fields=config.infer_fields, initial=_initial(config, prior)),
                      infer_loss=config.infer_loss, infer_every=config.infer_every)
+
+
+def _initial(config: ControlConfig, prior: dict | None) -> dict:
+    """The inference's start values: :data:`INITIAL`; a field left out of ``--infer-fields`` is
+    held at the prior's median (the value the plan uses for it), not at the start value."""
+    initial = dict(INITIAL)
+    if config.infer_fields is not None and prior:
+        initial.update({f: median for f, (median, _) in prior.items() if f not in config.infer_fields})
+    return initial
 
 
 # --- the experiment ------------------------------------------------------------------------

@@ -328,8 +328,10 @@ def test_the_rollout_loss_recovers_the_frictions_and_is_not_biased_by_noise(coul
 
 
 def test_the_cli_refuses_bad_inference_and_plant_coin_settings(sweep_dir, tmp_path, capsys):
-    """``--infer-loss``, ``--infer-every`` and ``--plant-phi`` are checked before any model loads,
-    naming the argument and what is allowed; nothing is written."""
+    """``--infer-loss``, ``--infer-every``, ``--infer-fields`` and ``--plant-phi`` are checked before
+    any model loads, naming the argument and what is allowed; nothing is written. Broken once
+    (the ``--plant-phi`` check removed): an unknown field reached the plant's φ and raised
+    ("TypeError: Phi.__init__() got an unexpected keyword argument 'mass_g'")."""
     from deapull.workflows.cli import main
     base = ["control", "--policy", "mpc", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--episodes", "1",
             "--out", str(tmp_path / "out"), "--no-progress"]
@@ -337,7 +339,8 @@ def test_the_cli_refuses_bad_inference_and_plant_coin_settings(sweep_dir, tmp_pa
                          (["--infer-every", "0"], "--infer-every 0"),
                          (["--plant-phi", "mass_g=2"], "mass_g"),
                          (["--plant-phi", "mu_b=-0.2"], "mu_b=-0.2"),
-                         (["--plant-phi", "mu_b=nan"], "mu_b=nan")):
+                         (["--plant-phi", "mu_b=nan"], "mu_b=nan"),
+                         (["--infer-fields", "mass_g"], "--infer-fields 'mass_g'")):
         assert main(base + extra) == 2, extra
         assert named in capsys.readouterr().err, (extra, named)
         assert not (tmp_path / "out").exists()
