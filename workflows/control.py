@@ -209,6 +209,7 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
             raise InputError(f"--setpoints-mm {1e3 * t!r}: every setpoint must be a finite number < 0 (mm; the "
                              "coin moves toward -x)")
     check_plant_phi(config)
+    check_inference(config)
     unreachable = check_fem(config) if any(p.kind == "fem" for p in config.plants) else {}
     for spec in config.plants:
         if _needs_surrogate(config, spec):
@@ -232,17 +233,6 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
             raise InputError(f"--mpc-creep {config.mpc_creep_V!r}: must be a finite number > 0 (V per step)")
         if not (math.isfinite(config.mpc_approach_m) and config.mpc_approach_m >= 0):
             raise InputError(f"--mpc-approach-mm {1e3 * config.mpc_approach_m!r}: must be a finite number >= 0 (mm)")
-        if config.infer_loss not in INFER_LOSSES:
-            raise InputError(f"--infer-loss {config.infer_loss!r}: choose one of {', '.join(INFER_LOSSES)}")
-        if int(config.infer_every) != config.infer_every or config.infer_every < 1:
-            raise InputError(f"--infer-every {config.infer_every!r}: must be an integer >= 1 (control steps)")
-        unknown = [f for f in config.infer_fields or () if f not in PLANT_PHI_FIELDS]
-        if unknown or (config.infer_fields is not None and not config.infer_fields):
-            raise InputError(f"--infer-fields {','.join(config.infer_fields or ())!r}: choose one or more of "
-                             f"{', '.join(PLANT_PHI_FIELDS)} (the rest stay at the prior's median)")
-        if config.infer_loss == "rollout" and config.infer_optimizer != "lm":
-            raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, not "
-                             f"{config.infer_optimizer!r}")
         if config.mpc_no_infer and (config.phi_prior != "coins" or config.mpc_oracle):
             raise InputError("--mpc-no-infer plans with the prior's median: it needs --phi-prior coins and no "
                              "--mpc-oracle")
@@ -348,6 +338,21 @@ def check_plant_phi(config: ControlConfig) -> None:
     if fem:
         raise InputError(f"--plant-phi sets the coin of surrogate plants only, not {', '.join(fem)} (an FEM "
                          f"plant's coin: --set coin.density_kg_m3=..., coin.mu_b=..., coin.mu_t=...)")
+
+
+def check_inference(config: ControlConfig) -> None:
+    """``--infer-loss``, ``--infer-every``, ``--infer-fields`` (cheap: before any folder is looked at)."""
+    if config.infer_loss not in INFER_LOSSES:
+        raise InputError(f"--infer-loss {config.infer_loss!r}: choose one of {', '.join(INFER_LOSSES)}")
+    if int(config.infer_every) != config.infer_every or config.infer_every < 1:
+        raise InputError(f"--infer-every {config.infer_every!r}: must be an integer >= 1 (control steps)")
+    unknown = [f for f in config.infer_fields or () if f not in PLANT_PHI_FIELDS]
+    if unknown or (config.infer_fields is not None and not config.infer_fields):
+        raise InputError(f"--infer-fields {','.join(config.infer_fields or ())!r}: choose one or more of "
+                         f"{', '.join(PLANT_PHI_FIELDS)} (the rest stay at the prior's median)")
+    if config.infer_loss == "rollout" and config.infer_optimizer != "lm":
+        raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, not "
+                         f"{config.infer_optimizer!r}")
 
 
 def task_of(config: ControlConfig) -> Task:
