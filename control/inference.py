@@ -68,7 +68,8 @@ class InferenceConfig:
     Attributes
     ----------
     fields : tuple of str or None
-        The fields of φ to infer (None: every field the model uses).
+        The fields of φ to infer (None: every field the model uses). The others stay at their
+        ``initial`` value, or at the prior's median where ``prior`` has one.
     initial : dict
         Starting value per field (SI units); defaults to :data:`INITIAL`.
     lr : float
@@ -135,6 +136,10 @@ class InferenceConfig:
     memory_refresh: int = 1
 
     def __post_init__(self):
+        if self.fields is not None and self.prior:
+            # a field left out of ``fields`` is held at the prior's median (what a plan uses for it)
+            held = {f: median for f, (median, _) in self.prior.items() if f not in self.fields}
+            object.__setattr__(self, "initial", {**self.initial, **held})
         if not self.lr > 0 or self.batch_size < 1 or self.updates_per_step < 0 or not self.residual_scale_m > 0:
             raise InputError(f"inference settings out of range: lr {self.lr} > 0, batch_size {self.batch_size} >= 1, "
                              f"updates_per_step {self.updates_per_step} >= 0, residual_scale_m "
@@ -219,8 +224,7 @@ class ReplayBuffer:
         """One transition: positions x̃_{t−1}, x̃_t, x̃_{t+1} (m), voltages V_t, V_{t+1} (V) and,
         for a model with memory, its entries before the transition ((1, k); None: at rest)."""
         row = torch.tensor([[x_prev, x, V, V_next, dt]], dtype=torch.float64)
-        new = self.predictor.cache(*row.unbind(-1), memory=memory) if self.predictor.memory \
-            else self.predictor.cache(*row.unbind(-1))
+        new = self.predictor.cache(*row.unbind(-1), memory=memory)
         self.columns = new if not self.columns else {k: torch.cat([self.columns[k], new[k]]) for k in new}
         self.target = torch.cat([self.target, torch.tensor([x_next], dtype=torch.float64)])
         if self.capacity is not None and len(self) > self.capacity:

@@ -138,13 +138,14 @@ class RolloutInference:
         """(x̂_t − x̃_t)/σ̂ over the episode (σ̂ fixed through one update)."""
         return (self.rollout(log_values) - np.asarray(self.x[1:])) / self._sigma
 
-    def _jacobian(self, log_values, r0: np.ndarray) -> np.ndarray:
-        J = np.empty((len(r0), len(self.fields)))
+    def _sensitivity(self, log_values, base: np.ndarray) -> np.ndarray:
+        """∂x̂_t/∂log φ (m) by forward differences from the rollout ``base`` at ``log_values``."""
+        S = np.empty((len(base), len(self.fields)))
         for i in range(len(self.fields)):
             trial = np.array(log_values, dtype=np.float64)
             trial[i] += FD_STEP
-            J[:, i] = (self._residuals(trial) - r0) / FD_STEP
-        return J
+            S[:, i] = (self.rollout(trial) - base) / FD_STEP
+        return S
 
     def _prior(self, log_values) -> tuple[np.ndarray, np.ndarray]:
         """The prior's residuals (log φ − log median)/std and their Jacobian (MAP with the data's
@@ -185,7 +186,6 @@ class RolloutInference:
                 return None
         record = None
         for _ in range(steps):
-            self._sigma = max(cfg.observation_std_m, self.misfit_m())
             loss = self._lm_step()
             self.iteration += 1
             record = {"iteration": self.iteration, "loss": loss, "transitions": self.transitions, **self.estimate()}
@@ -194,8 +194,10 @@ class RolloutInference:
 
     def _lm_step(self) -> float:
         current = np.array(self.log_phi, dtype=np.float64)
-        r = self._residuals(current)
-        J = self._jacobian(current, r)
+        base = self.rollout(current)
+        d = base - np.asarray(self.x[1:])
+        self._sigma = max(self.config.observation_std_m, float(np.sqrt(np.mean(d * d))))   # σ̂ of this update
+        r, J = d / self._sigma, self._sensitivity(current, base) / self._sigma
         if self.config.prior:
             rp, Jp = self._prior(current)
             r, J = np.concatenate([r, rp]), np.vstack([J, Jp])
@@ -225,12 +227,7 @@ class RolloutInference:
         rollout: S = ∂x̂_t/∂log φ (forward differences), F = SᵀS/σ² (inf where F is singular)."""
         if self.transitions == 0:
             return {f: math.inf for f in self.fields}
-        base = self.rollout(self.log_phi)
-        S = np.empty((len(base), len(self.fields)))
-        for i in range(len(self.fields)):
-            trial = np.array(self.log_phi, dtype=np.float64)
-            trial[i] += FD_STEP
-            S[:, i] = (self.rollout(trial) - base) / FD_STEP
+        S = self._sensitivity(self.log_phi, self.rollout(self.log_phi))
         F = S.T @ S / noise_std_m ** 2
         eig = np.linalg.eigvalsh(F)
         if not eig.min() > 1e-12 * max(float(eig.max()), 1e-300):

@@ -41,7 +41,7 @@ from deapull import provenance
 from deapull import scene as scenes
 from deapull.control.dynamics import COSTS
 from deapull.control.harness import PHI_FIELDS, Bench, Episode, Task, run_episode
-from deapull.control.inference import COIN_PRIOR, INITIAL, InferenceConfig
+from deapull.control.inference import COIN_PRIOR, InferenceConfig
 from deapull.control.mpc_policy import INFER_LOSSES, MPCConfig
 from deapull.control.policies import SAC_FILE
 from deapull.surrogate import store
@@ -406,17 +406,8 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
                      reach_gate=config.mpc_reach_gate,
                      recentre_stds=0.0 if plain else config.mpc_recentre,
                      inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior,
-                                               fields=config.infer_fields, initial=_initial(config, prior)),
+                                               fields=config.infer_fields),
                      infer_loss=config.infer_loss, infer_every=config.infer_every)
-
-
-def _initial(config: ControlConfig, prior: dict | None) -> dict:
-    """The inference's start values: :data:`INITIAL`; a field left out of ``--infer-fields`` is
-    held at the prior's median (the value the plan uses for it), not at the start value."""
-    initial = dict(INITIAL)
-    if config.infer_fields is not None and prior:
-        initial.update({f: median for f, (median, _) in prior.items() if f not in config.infer_fields})
-    return initial
 
 
 # --- the experiment ------------------------------------------------------------------------
