@@ -137,3 +137,34 @@ def test_the_refine_study_compares_with_its_finest_case_and_fits_the_layers_trip
     order, extrap = re.search(r"observed order ([\d.]+), Richardson travel ([\d.]+) mm", second).groups()
     assert abs(float(order) - 2.0) < 0.01 and abs(float(extrap) - 1e3 * f0) < 1e-4
     assert fem_study.refine_summary(tmp_path / "empty")[0] == []
+
+
+def test_the_pause_study_finds_the_coins_stops_in_the_slide_and_the_contact_line_across_them(tmp_path):
+    """``fem-study --study pause``: the coin stands at first (stick = 1, x = 0), slides, stops for
+    records 6-8 while the contact line jumps from 3.80 to 3.71 mm, slides again, and stands at the
+    end. Only records 6-8 are a stop in the slide. Broken once: the stop's last record taken one
+    record late (t1 0.9 instead of 0.8, and the contact line after it 3.72 instead of 3.71)."""
+    import numpy as np
+
+    from deapull import dataset
+    from deapull.workflows import fem_study
+    t = np.linspace(0.0, 1.2, 13)
+    stick = np.array([1, 1, 0, 0, 0, 0, 1, 1, 1, 0, 0, 1, 1], dtype=float)
+    x = -1e-4 * np.cumsum(1 - stick)
+    z = np.array([3.6, 3.6, 3.7, 3.75, 3.78, 3.80, 3.79, 3.75, 3.72, 3.71, 3.72, 3.72, 3.72]) * 1e-3
+    [stop] = fem_study.stops(t, x, stick, contact_abs_z=z)
+    assert (stop["t0"], stop["t1"]) == pytest.approx((0.6, 0.8))
+    assert (stop["z_before"], stop["z_after"]) == pytest.approx((3.80e-3, 3.71e-3))
+    assert fem_study.stops(t, np.zeros_like(x), np.ones_like(stick)) == []
+    for name, scale in ((fem_study.PAUSE_BASE, 1.0), ("l4p2-dt10ms-shift", 1.05)):
+        cols = {v: np.zeros(t.size) for v in dataset.VARIABLES}
+        cols.update(t=t, x=scale * x, stick=stick, contact_abs_z=z, n_contact=np.arange(t.size) + 100.0)
+        attrs = {"scene_toml": fem_study.resolved_scene(fem_study.PAUSE[name]), "mesh_dofs": 37026,
+                 "wall_time_total_s": 1.0}
+        dataset.write(dataset.build(cols, attrs), tmp_path / name / "C3.nc")
+    by = {r["case"]: r for r in fem_study.pause_summary(tmp_path)}
+    assert set(by) == {fem_study.PAUSE_BASE, "l4p2-dt10ms-shift"}
+    assert by["l4p2-dt10ms-shift"]["vs_base_pct"] == pytest.approx(5.0)
+    assert by[fem_study.PAUSE_BASE]["stopped"] == "0.600–0.800" and by[fem_study.PAUSE_BASE]["stops"] == 1
+    assert by[fem_study.PAUSE_BASE]["contact_z_mm"] == "3.800 → 3.710"
+    assert by[fem_study.PAUSE_BASE]["min_points"] == 102          # the first sliding record's
