@@ -447,7 +447,7 @@ PAUSE_TABLE = (("case", "case", ""), ("dofs", "dofs", "d"), ("travel mm", "trave
                ("contact points (min in the slide)", "min_points", "d"))
 
 
-def stops(t, x, stick, n_contact=None, contact_abs_z=None) -> list[dict]:
+def stops(t, x, stick, contact_abs_z=None) -> list[dict]:
     """The coin's stops in the slide: maximal runs of records with ``stick`` = 1 after the first
     sliding record (``stick`` = 0 and the coin moved), up to the last sliding one (a coin standing
     at the end has stopped sliding, not paused). Each stop: its first and last record's time and,
