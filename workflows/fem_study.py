@@ -194,12 +194,14 @@ REFINE_LAYERS = (REFINE_BASE, "layers2", "layers4", "layers8")
 #: mesh stops. The checks, each at twice the step (0.01 s, which moves the travel 0.3 %): the
 #: case itself, its rim band shifted by half an element (node lines at 3.625 / 3.875 mm), and a
 #: coarser contact rule (degree 12, 7 x 7 points per facet, against 11 x 11); and the cheaper
-#: underside grading of ``graded-a2-p4`` with the 0.25 mm patch.
+#: underside grading of ``graded-a2-p4`` with the 0.25 mm patch, and with the rim band alone at
+#: 0.25 mm (the tip zone at 0.5 mm).
 PAUSE_BASE = "l4p2-dt10ms"
 PAUSE = {PAUSE_BASE: (*REFINE["layers4-patch2"], "time.dt_max_s=0.01"),
          "l4p2-dt10ms-shift": (*REFINE["layers4-patch2"], "time.dt_max_s=0.01", "mesh.rim_band_m=[0.003125,0.005125]"),
          "l4p2-dt10ms-rule12": (*REFINE["layers4-patch2"], "time.dt_max_s=0.01", "contact.quadrature_degree=12"),
-         "graded-p2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(8, 8), "time.dt_max_s=0.01")}
+         "graded-p2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(8, 8), "time.dt_max_s=0.01"),
+         "graded-rim2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(4, 8), "time.dt_max_s=0.01")}
 
 STUDIES = {"reference": REFERENCE, "patch-soft": PATCH_SOFT, "patch-rule": PATCH_RULE, "patch-fine": PATCH_FINE, "patch-penalty": PATCH_PENALTY, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED,
            "refine": REFINE, "pause": PAUSE}
