@@ -197,9 +197,10 @@ REFINE_LAYERS = (REFINE_BASE, "layers2", "layers4", "layers8")
 #: underside grading of ``graded-a2-p4`` with the 0.25 mm patch, and with the rim band alone at
 #: 0.25 mm (the tip zone at 0.5 mm).
 PAUSE_BASE = "l4p2-dt10ms"
-PAUSE = {PAUSE_BASE: (*REFINE["layers4-patch2"], "time.dt_max_s=0.01"),
-         "l4p2-dt10ms-shift": (*REFINE["layers4-patch2"], "time.dt_max_s=0.01", "mesh.rim_band_m=[0.003125,0.005125]"),
-         "l4p2-dt10ms-rule12": (*REFINE["layers4-patch2"], "time.dt_max_s=0.01", "contact.quadrature_degree=12"),
+_L4P2_10MS = (*REFINE["layers4-patch2"], "time.dt_max_s=0.01")
+PAUSE = {PAUSE_BASE: _L4P2_10MS,
+         "l4p2-dt10ms-shift": (*_L4P2_10MS, "mesh.rim_band_m=[0.003125,0.005125]"),
+         "l4p2-dt10ms-rule12": (*_L4P2_10MS, "contact.quadrature_degree=12"),
          "graded-p2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(8, 8), "time.dt_max_s=0.01"),
          "graded-rim2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(4, 8), "time.dt_max_s=0.01")}
 
