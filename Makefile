@@ -79,10 +79,11 @@ bench-control: setup ## ms per MPC step: our box-iLQR vs mpc.pytorch (installed 
 		--target-mm $(BENCH_TARGET_MM)
 
 FEM_PLANTS ?= C3
+comma := ,
 bench-control-fem: setup ## one episode of make control-fem's MPC on the FEM plant per setup in FEM_PLANTS: ms per FEM step and per plan, wall time per episode (needs $(DATA))
 	$(FA_MEM)
-	$(PY) bench/bench_control_fem.py --plants $(FEM_PLANTS) --mpc-model $(MODELS)/fa_mem --data $(DATA) \
-		--fidelity '$(FIDELITY)' --out $(OUT)/bench_control_fem
+	$(PY) bench/bench_control_fem.py $(FEM_CONTROL) --plant $(subst $(comma),$(comma)fem:,fem:$(FEM_PLANTS)) \
+		--data $(DATA) --out $(OUT)/bench_control_fem
 
 MODELS ?= $(OUT)/models
 NOISE ?= 0,1e-5,1e-4,1e-3

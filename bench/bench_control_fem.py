@@ -1,7 +1,8 @@
 """FEM-in-the-loop benchmark (``make bench-control-fem``): one closed-loop episode of the MPC
-on the FEM plant of each ``--plants`` setup, timed per part, in one run.
+on each FEM plant of ``--plant``, timed per part, in one run.
 
-Per episode: ms per FEM step (``advance(V, 1 ms)`` at ``--fidelity``, default resolved, serial), ms per MPC
+Per episode: ms per FEM step (``advance(V, 1 ms)`` at ``--fidelity``; make passes FIDELITY,
+default resolved; serial), ms per MPC
 plan (the compiled iLQR on f_a) and per inference update (none under ``make control-fem``'s
 fixed prior), the closed-loop wall time of the
 episode (placement, the start ramp and every step), and the ratio FEM step / MPC plan: how
@@ -9,14 +10,17 @@ much of the loop is the plant. Beside the paper's figures (``deapull.paper``: it
 per iteration and its ABAQUS run's time per ramp). Prints a table; ``--out``
 keeps the harness's outputs (control.csv, traces, plots) and ``bench_control_fem.json``.
 
-The defaults are ``make control-fem``'s setting (the f-memory f_a at the coin prior's median φ,
-0.4 V per step tapered to 0.1 V within 0.1 mm, a stand-off of 2 stds, the bias filter's
-innovation check over 25 steps, 4,000 steps); ``--mpc-model out/models/fa --infer --standoff 0
---innovation-window 0 --max-steps 3000`` times ``make control-fem-infer``'s.
+It takes ``deapull control``'s own flags (``deapull control --help``), and ``make
+bench-control-fem`` passes it ``make control-fem``'s (``$(FEM_CONTROL)`` in the Makefile: the
+f-memory f_a at the coin prior's median φ, 0.4 V per step tapered to 0.1 V within 0.1 mm, a
+stand-off of 2 stds, the bias filter's innovation check over 25 steps, 4,000 steps), so the two
+cannot drift apart. ``FEM_PLANTS=C1,C3`` picks the setups. ``make control-fem-infer``'s setting
+is timed with its flags (``$(FEM_CONTROL_INFER)``). The policy must be ``mpc`` alone and every
+plant a FEM plant: anything else exits 2 before any step.
 """
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import logging
 import statistics
 import sys
@@ -24,44 +28,33 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from deapull import scene as scenes  # noqa: E402
+from deapull.errors import InputError  # noqa: E402
 from deapull.io import markdown_table, write_json  # noqa: E402
 from deapull.paper import ABAQUS_POINTS, ABAQUS_S, MPC_S_PER_ITERATION  # noqa: E402
 from deapull.workflows import control  # noqa: E402
 
 
+def config_of(argv):
+    """``deapull control``'s :class:`ControlConfig` of ``argv``, checked to be the MPC alone on FEM
+    plants (what this bench times); the progress bar off."""
+    from deapull.workflows.cli import build_parser
+    from deapull.workflows.cli_control import control_config
+    config = control_config(build_parser().parse_args(["control", *argv]))
+    if config.policies != ["mpc"]:
+        raise InputError(f"--policy {','.join(config.policies)}: the bench times the MPC alone (--policy mpc)")
+    others = [p.name for p in config.plants if p.kind != "fem"]
+    if others:
+        raise InputError(f"--plant {','.join(others)}: the bench times FEM plants only (fem:SETUP)")
+    return dataclasses.replace(config, progress=False)
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--plants", default="C3", help="setups of the FEM plant, comma-separated (default C3)")
-    ap.add_argument("--noise", type=float, default=1e-4, help="observation noise std (m; default 1e-4)")
-    ap.add_argument("--mpc-model", default="out/models/fa_mem",
-                    help="f_a (default out/models/fa_mem, the f-memory f_a of make control-fem)")
-    ap.add_argument("--data", default="data")
-    ap.add_argument("--hold", type=int, default=100)
-    ap.add_argument("--max-steps", type=int, default=4000)
-    ap.add_argument("--max-rate", type=float, default=0.4, help="the MPC's |dV| per step (V; as make control-fem)")
-    ap.add_argument("--approach-mm", type=float, default=0.1, help="the MPC's approach limit (mm; as make control-fem)")
-    ap.add_argument("--creep", type=float, default=0.1, help="the MPC's smallest |dV| per step (V; as make control-fem)")
-    ap.add_argument("--standoff", type=float, default=2.0, help="the MPC's stand-off in stds (as make control-fem)")
-    ap.add_argument("--innovation-window", type=int, default=25,
-                    help="the bias filter's innovation check, in steps (as make control-fem; 0 = off)")
-    ap.add_argument("--infer", action="store_true",
-                    help="infer φ online (make control-fem-infer; needs an f_a that can: f-coulomb); default: plan "
-                         "at the coin prior's median, as make control-fem")
-    ap.add_argument("--fidelity", default="resolved",
-                    help="the FEM plant's fidelity (a [fidelities.NAME] of coin_pull; '' = the file as written; "
-                         "default resolved, as the datasets)")
-    ap.add_argument("--out", default="out/bench_control_fem")
-    args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s: %(message)s")
-    config = control.ControlConfig(
-        policies=["mpc"], plants=control.parse_plants(",".join(f"fem:{s}" for s in control.parse_list(args.plants,
-                                                                                                     "--plants"))),
-        noises=[args.noise], out=Path(args.out), episodes=1, hold_steps=args.hold, max_steps=args.max_steps,
-        data=Path(args.data), mpc_model=args.mpc_model, phi_prior="coins", mpc_approach_m=1e-3 * args.approach_mm,
-        mpc_standoff=args.standoff, mpc_innovation_window=args.innovation_window, mpc_no_infer=not args.infer,
-        mpc_max_rate_V=args.max_rate, mpc_creep_V=args.creep, progress=False,
-        overrides=list(scenes.fidelity_overrides("coin_pull", args.fidelity)), unreachable="report")
+    try:
+        config = config_of(sys.argv[1:] if argv is None else argv)
+    except InputError as e:
+        print(f"bench_control_fem: error: {e}", file=sys.stderr)
+        return 2
     rows = [e.row for e in control.run(config)]
     table = []
     for r in rows:
@@ -80,8 +73,9 @@ def main(argv=None) -> int:
     if rows:
         print(f"median FEM step {statistics.median(t['fem_ms'] for t in table):.1f} ms, "
               f"median MPC plan {statistics.median(t['plan_ms'] for t in table):.2f} ms")
-    write_json(Path(args.out) / "bench_control_fem.json", {"rows": table, "noise_std_m": args.noise,
-                                                           "setting": vars(args)}, indent=2)
+    write_json(config.out / "bench_control_fem.json", {"rows": table, "noise_std_m": config.noises,
+                                                       "setting": sys.argv[1:] if argv is None else list(argv)},
+               indent=2)
     return 0
 
 

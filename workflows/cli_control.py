@@ -14,9 +14,22 @@ from deapull.workflows.args import add_fidelity_arg, overrides_of
 
 def cmd_control(args) -> int:
     from deapull.workflows import control  # lazy: torch and gymnasium load only when a run starts
+    config = control_config(args)
+    import torch  # lazy: as above
+    torch.set_num_threads(args.threads)
+    episodes = control.run(config)
+    print(control.summary_table([e.row for e in episodes]))
+    print(f"wrote {config.out}/control.csv, table.md, traces.npz, run.json and the figures")
+    return 0
+
+
+def control_config(args):
+    """The :class:`~deapull.workflows.control.ControlConfig` of ``deapull control``'s arguments
+    (``bench/bench_control_fem.py`` takes the same flags, so it times ``make control-fem``'s own)."""
+    from deapull.workflows import control  # lazy: as above
     if args.threads < 1:
         raise InputError(f"--threads {args.threads} must be at least 1")
-    config = control.ControlConfig(
+    return control.ControlConfig(
         policies=control.parse_policies(args.policy),
         plants=control.parse_plants(args.plant, args.scene),
         noises=control.parse_noises(args.noise),
@@ -32,12 +45,6 @@ def cmd_control(args) -> int:
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
         save_fem_runs=None if args.save_fem_runs is None else Path(args.save_fem_runs))
-    import torch  # lazy: as above
-    torch.set_num_threads(args.threads)
-    episodes = control.run(config)
-    print(control.summary_table([e.row for e in episodes]))
-    print(f"wrote {config.out}/control.csv, table.md, traces.npz, run.json and the figures")
-    return 0
 
 
 def mpc_settings(args) -> dict:
