@@ -202,7 +202,12 @@ PAUSE = {PAUSE_BASE: _L4P2_10MS,
          "l4p2-dt10ms-shift": (*_L4P2_10MS, "mesh.rim_band_m=[0.003125,0.005125]"),
          "l4p2-dt10ms-rule12": (*_L4P2_10MS, "contact.quadrature_degree=12"),
          "graded-p2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(8, 8), "time.dt_max_s=0.01"),
-         "graded-rim2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(4, 8), "time.dt_max_s=0.01")}
+         "graded-rim2-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(4, 8), "time.dt_max_s=0.01"),
+         # the two ladders through graded-p2-dt10ms: the tip zone along x (0.5 / 0.25 / 0.125 mm,
+         # with graded-rim2-dt10ms), and the underside (four / eight graded passive elements)
+         "graded-tip16-dt10ms": (*REFINE["graded-a2-p4"], *tip_rim(16, 8), "time.dt_max_s=0.01"),
+         "graded-p8-p2-dt10ms": refined("mesh.n_active=2", "mesh.n_passive=8", "mesh.underside_grading=4.0",
+                                        *tip_rim(8, 8), "time.dt_max_s=0.01")}
 
 STUDIES = {"reference": REFERENCE, "patch-soft": PATCH_SOFT, "patch-rule": PATCH_RULE, "patch-fine": PATCH_FINE, "patch-penalty": PATCH_PENALTY, "uniform": UNIFORM, "levels": LEVELS, "dt": DT, "quadrature": QUADRATURE, "friction": FRICTION, "candidates": CANDIDATES, "shipped": SHIPPED,
            "refine": REFINE, "pause": PAUSE}
@@ -434,14 +439,20 @@ def refine_summary(out: Path) -> tuple[list[dict], list[str]]:
         label = " / ".join(REFINE_LAYERS[i:i + 3])
         if any(f is None for f in triple):
             continue
-        p, extrap, bound = richardson(triple, (2.0, 2.0))
-        if math.isfinite(p):
-            lines.append(f"layers {label}: observed order {p:.2f}, Richardson travel {1e3 * extrap:.4f} mm "
-                         f"± {1e3 * bound:.4f} mm ({100 * bound / extrap:.2f} %)")
-        else:
-            lines.append(f"layers {label}: no observed order (the steps {1e3 * (triple[1] - triple[0]):+.4f}, "
-                         f"{1e3 * (triple[2] - triple[1]):+.4f} mm do not shrink geometrically)")
+        lines.append(ladder_line(f"layers {label}", triple)[0])
     return rows, lines
+
+
+def ladder_line(label: str, triple) -> tuple[str, float, float]:
+    """Three levels' travels (refinement ratio 2) through :func:`richardson`: a line that gives the
+    observed order, the Richardson travel and its bound, or says that there is no order; and the
+    extrapolated travel and the bound (without an order: the finest travel, the larger step)."""
+    p, extrap, bound = richardson(triple, (2.0, 2.0))
+    steps = f"the steps {1e3 * (triple[1] - triple[0]):+.4f}, {1e3 * (triple[2] - triple[1]):+.4f} mm"
+    if math.isfinite(p):
+        return (f"{label} ({steps}): observed order {p:.2f}, Richardson travel {1e3 * extrap:.4f} mm "
+                f"± {1e3 * bound:.4f} mm ({100 * bound / extrap:.2f} %)"), extrap, bound
+    return f"{label}: no observed order ({steps} do not shrink geometrically)", extrap, bound
 
 
 PAUSE_TABLE = (("case", "case", ""), ("dofs", "dofs", "d"), ("travel mm", "travel_mm", ".4f"),
@@ -499,6 +510,43 @@ def pause_summary(out: Path) -> list[dict]:
     return rows
 
 
+#: the pause study's ladder along the tip zone (x): 0.5 / 0.25 / 0.125 mm elements over the 2 mm at
+#: the free end, on ``graded-a2-p4``'s underside with the 0.25 mm rim band (refinement ratio 2)
+PAUSE_TIP_LADDER = ("graded-rim2-dt10ms", "graded-p2-dt10ms", "graded-tip16-dt10ms")
+#: and the underside's pair through its middle level: four / eight graded passive elements
+PAUSE_UNDERSIDE_PAIR = ("graded-p2-dt10ms", "graded-p8-p2-dt10ms")
+#: the contact rule's pair: 11 x 11 / 7 x 7 points per facet on ``layers4-patch2``
+PAUSE_RULE_PAIR = (PAUSE_BASE, "l4p2-dt10ms-rule12")
+
+
+def pause_ladders(out: Path) -> list[str]:
+    """The pause study's convergence lines: the tip-zone ladder (``PAUSE_TIP_LADDER``) through
+    :func:`richardson`, the underside's and the contact rule's two-level changes, and, when all
+    three are complete, a stated bound on the tip ladder's Richardson travel: its GCI (without an
+    observed order: the larger step, on the finest travel) plus the whole two-level change of the
+    underside and of the rule (no order is assumed for those, so each counts in full)."""
+    travel = {}
+    for name in {*PAUSE_TIP_LADDER, *PAUSE_UNDERSIDE_PAIR, *PAUSE_RULE_PAIR}:
+        if dataset.is_complete(out / name / "C3.nc", resolved_scene(PAUSE[name])):
+            x = dataset.read(out / name / "C3.nc", ("x",)).columns["x"]
+            travel[name] = float(np.max(np.abs(x)))
+    lines, parts = [], {}
+    if all(n in travel for n in PAUSE_TIP_LADDER):
+        line, ref, bound = ladder_line("tip zone 0.5 / 0.25 / 0.125 mm", [travel[n] for n in PAUSE_TIP_LADDER])
+        lines.append(line)
+        parts["tip zone"] = bound
+    for what, (a, b) in (("underside", PAUSE_UNDERSIDE_PAIR), ("contact rule", PAUSE_RULE_PAIR)):
+        if a in travel and b in travel:
+            change = travel[b] - travel[a]
+            lines.append(f"{what}: {b} against {a}: {1e3 * change:+.4f} mm ({100 * change / travel[a]:+.2f} %)")
+            parts[f"{what} (two levels)"] = abs(change)
+    if len(parts) == 3:
+        total = sum(parts.values())
+        lines.append(f"stated bound on {1e3 * ref:.4f} mm: ± {1e3 * total:.4f} mm ({100 * total / ref:.2f} %; goal ≤ 1 %) = "
+                     + " + ".join(f"{what} {100 * v / ref:.2f} %" for what, v in parts.items()))
+    return lines
+
+
 def run_studies(studies, out: Path, reference: Path, cases=(), reference_ranks: int = 1) -> int:
     """Run the studies' missing cases (resumes), then print the reference's convergence table
     and every study's comparison against it. With ``reference`` among the studies the reference
@@ -552,8 +600,10 @@ def run_studies(studies, out: Path, reference: Path, cases=(), reference_ranks: 
             if rows:
                 table = markdown_table(rows, PAUSE_TABLE)
                 write_csv(out / "pause-own.csv", rows, [k for _, k, _ in PAUSE_TABLE])
-                write_text(out / "pause-own.md", table + "\n")
+                lines = pause_ladders(out)
+                write_text(out / "pause-own.md", table + "\n\n" + "".join(f"- {x}\n" for x in lines))
                 print(f"\nthe coin's stops in the slide (pause)\n{table}")
+                print("\n".join(lines))
     return 0
 
 

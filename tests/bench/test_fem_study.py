@@ -168,3 +168,42 @@ def test_the_pause_study_finds_the_coins_stops_in_the_slide_and_the_contact_line
     assert by[fem_study.PAUSE_BASE]["stopped"] == "0.600–0.800" and by[fem_study.PAUSE_BASE]["stops"] == 1
     assert by[fem_study.PAUSE_BASE]["contact_z_mm"] == "3.800 → 3.710"
     assert by[fem_study.PAUSE_BASE]["min_points"] == 102          # the first sliding record's
+
+
+def test_the_pause_studys_ladders_state_a_bound_from_the_tip_zone_the_underside_and_the_rule(tmp_path):
+    """``pause_ladders``: the tip-zone ladder's travels follow 1.15 mm + C h^2 (h = 0.5 / 0.25 /
+    0.125 mm), so Richardson gives order 2, the limit 1.15 mm and the GCI 1.25 x (f3 - 1.15 mm);
+    the underside's pair moves -0.2 % and the rule's +1 µm; the stated bound is the three summed.
+    Without the finest tip level there is no ladder and no bound. Broken once: the rule's change
+    left out of the bound (the total then 6.23 µm, not 7.23 µm)."""
+    import numpy as np
+
+    from deapull import dataset
+    from deapull.workflows import fem_study
+    f = {h: 1.15e-3 + 0.2e-3 * h ** 2 for h in (0.5, 0.25, 0.125)}
+    travels = dict(zip(fem_study.PAUSE_TIP_LADDER, f.values()))
+    travels[fem_study.PAUSE_UNDERSIDE_PAIR[1]] = travels[fem_study.PAUSE_UNDERSIDE_PAIR[0]] * (1 - 0.002)
+    travels[fem_study.PAUSE_RULE_PAIR[0]] = 1.15e-3
+    travels[fem_study.PAUSE_RULE_PAIR[1]] = 1.151e-3
+    t = np.linspace(0.0, 1.0, 11)
+
+    def write(name):
+        cols = {v: np.zeros(t.size) for v in dataset.VARIABLES}
+        cols.update(t=t, x=-travels[name] * t)
+        attrs = {"scene_toml": fem_study.resolved_scene(fem_study.PAUSE[name]), "mesh_dofs": 1, "wall_time_total_s": 1.0}
+        dataset.write(dataset.build(cols, attrs), tmp_path / name / "C3.nc")
+
+    for name in travels:
+        if name != fem_study.PAUSE_TIP_LADDER[-1]:
+            write(name)
+    lines = fem_study.pause_ladders(tmp_path)
+    assert not any(x.startswith(("tip zone", "stated bound")) for x in lines)
+    assert any(x.startswith("underside") and "(-0.20 %)" in x for x in lines)
+    write(fem_study.PAUSE_TIP_LADDER[-1])
+    lines = fem_study.pause_ladders(tmp_path)
+    [tip] = [x for x in lines if x.startswith("tip zone")]
+    gci = 1.25 * 0.2e-3 * 0.125 ** 2
+    assert "observed order 2.00" in tip and "Richardson travel 1.1500 mm" in tip
+    [stated] = [x for x in lines if x.startswith("stated bound")]
+    total = gci + 0.002 * f[0.25] + 1e-6
+    assert f"± {1e3 * total:.4f} mm" in stated and f"({100 * total / 1.15e-3:.2f} %" in stated
