@@ -50,8 +50,9 @@ def config_of(argv):
 
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s: %(message)s")
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        config = config_of(sys.argv[1:] if argv is None else argv)
+        config = config_of(argv)
     except InputError as e:
         print(f"bench_control_fem: error: {e}", file=sys.stderr)
         return 2
@@ -74,8 +75,7 @@ def main(argv=None) -> int:
         print(f"median FEM step {statistics.median(t['fem_ms'] for t in table):.1f} ms, "
               f"median MPC plan {statistics.median(t['plan_ms'] for t in table):.2f} ms")
     write_json(config.out / "bench_control_fem.json", {"rows": table, "noise_std_m": config.noises,
-                                                       "setting": sys.argv[1:] if argv is None else list(argv)},
-               indent=2)
+                                                       "setting": argv}, indent=2)
     return 0
 
 

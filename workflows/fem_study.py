@@ -522,17 +522,14 @@ PAUSE_UNDERSIDE_PAIR = ("graded-p2-dt10ms", "graded-p8-p2-dt10ms")
 PAUSE_RULE_PAIR = (PAUSE_BASE, "l4p2-dt10ms-rule12")
 
 
-def pause_ladders(out: Path) -> list[str]:
-    """The pause study's convergence lines: the tip-zone ladder (``PAUSE_TIP_LADDER``) through
+def pause_ladders(rows: list[dict]) -> list[str]:
+    """The pause study's convergence lines from :func:`pause_summary`'s ``rows`` (the complete
+    cases): the tip-zone ladder (``PAUSE_TIP_LADDER``) through
     :func:`richardson`, the underside's and the contact rule's two-level changes, and, when all
     three are complete, a stated bound on the tip ladder's Richardson travel: its GCI (without an
     observed order: the larger step, on the finest travel) plus the whole two-level change of the
     underside and of the rule (no order is assumed for those, so each counts in full)."""
-    travel = {}
-    for name in {*PAUSE_TIP_LADDER, *PAUSE_UNDERSIDE_PAIR, *PAUSE_RULE_PAIR}:
-        if dataset.is_complete(out / name / "C3.nc", resolved_scene(PAUSE[name])):
-            x = dataset.read(out / name / "C3.nc", ("x",)).columns["x"]
-            travel[name] = float(np.max(np.abs(x)))
+    travel = {r["case"]: 1e-3 * r["travel_mm"] for r in rows}
     lines, parts = [], {}
     if all(n in travel for n in PAUSE_TIP_LADDER):
         line, ref, bound = ladder_line("tip zone 0.5 / 0.25 / 0.125 mm", [travel[n] for n in PAUSE_TIP_LADDER])
@@ -603,7 +600,7 @@ def run_studies(studies, out: Path, reference: Path, cases=(), reference_ranks: 
             if rows:
                 table = markdown_table(rows, PAUSE_TABLE)
                 write_csv(out / "pause-own.csv", rows, [k for _, k, _ in PAUSE_TABLE])
-                lines = pause_ladders(out)
+                lines = pause_ladders(rows)
                 write_text(out / "pause-own.md", table + "\n\n" + "".join(f"- {x}\n" for x in lines))
                 print(f"\nthe coin's stops in the slide (pause)\n{table}")
                 print("\n".join(lines))

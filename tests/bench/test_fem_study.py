@@ -196,11 +196,11 @@ def test_the_pause_studys_ladders_state_a_bound_from_the_tip_zone_the_underside_
     for name in travels:
         if name != fem_study.PAUSE_TIP_LADDER[-1]:
             write(name)
-    lines = fem_study.pause_ladders(tmp_path)
+    lines = fem_study.pause_ladders(fem_study.pause_summary(tmp_path))
     assert not any(x.startswith(("tip zone", "stated bound")) for x in lines)
     assert any(x.startswith("underside") and "(-0.20 %)" in x for x in lines)
     write(fem_study.PAUSE_TIP_LADDER[-1])
-    lines = fem_study.pause_ladders(tmp_path)
+    lines = fem_study.pause_ladders(fem_study.pause_summary(tmp_path))
     [tip] = [x for x in lines if x.startswith("tip zone")]
     gci = 1.25 * 0.2e-3 * 0.125 ** 2
     assert "observed order 2.00" in tip and "Richardson travel 1.1500 mm" in tip
