@@ -16,7 +16,7 @@ MPIRUN := mpirun -n $(NP)
 FIDELITY ?= resolved
 FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-blas bench-control-fem control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-blas bench-control-fem bench-inference control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -111,6 +111,10 @@ FEM_CONTROL := $(FEM_COMMON) --max-steps 4000 --mpc-model $(MODELS)/fa_mem --mpc
 	--mpc-innovation-window 25
 FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
+bench-inference: setup ## ms per online-inference update of the f-memory f_a: compiled vs torch, same run (needs $(DATA))
+	$(FA_MEM)
+	$(PY) bench/bench_inference.py --model $(MODELS)/fa_mem
+
 control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (resolved: ~1.5 h on one core, 7-25 min an episode)
 	$(FA_MEM)
 	$(DEAPULL) control $(FEM_CONTROL) --plant $(FEM_ALL) --out $(OUT)/control_fem

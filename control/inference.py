@@ -105,7 +105,9 @@ class InferenceConfig:
         default 1 nm only keeps w > 0 on noise-free data.
     engine : {"auto", "native", "torch"}
         Where the Levenberg–Marquardt step evaluates the residuals and their Jacobian:
-        ``native`` in C (:func:`deapull.control.native.coin_predict`, f-coulomb; the same
+        ``native`` in C (:func:`deapull.control.native.coin_predict` for f-coulomb,
+        :func:`~deapull.control.native.memory_predict` for f-memory, whose buffer's memory is
+        then re-derived in C too (:func:`~deapull.control.native.memory_scan`); the same
         numbers to round-off), ``torch`` by autograd through the model, ``auto`` native
         where available. Adam always uses torch.
     memory_refresh : int
@@ -264,12 +266,10 @@ class OnlineInference:
         if missing:
             raise InputError(f"no initial value for {', '.join(missing)} (InferenceConfig.initial)")
         self.predictor = Predictor(self.model)
-        self.native = None
-        if config.engine != "torch" and model.can("compiled_mpc"):
-            self.native = native if native.available(model) else None
+        self.native = native.predictor(model) if config.engine != "torch" else None
         if config.engine == "native" and self.native is None:
-            raise InputError(f"the native inference needs a model with the 'compiled_mpc' capability and a C "
-                             f"compiler (model: {model.kind!r})")
+            raise InputError(f"the native inference needs a model with the 'compiled_mpc' or 'compiled_mpc_memory' "
+                             f"capability and a C compiler (model: {model.kind!r})")
         self.reset()
 
     def reset(self) -> None:
@@ -322,7 +322,7 @@ class OnlineInference:
             self.buffer.add(x0, x1, x2, V1, V2, self.dt, self.tip)
             if self.predictor.memory:      # where the tip goes in that transition, at today's estimate
                 last = {k: v[-1:] for k, v in self.buffer.columns.items()}
-                self.tip = self.predictor.memory_after(last, self.phi)
+                self.tip = self._memory_after(last)
         del self.history[:-3]
 
     def refresh_memory(self) -> None:
@@ -331,8 +331,19 @@ class OnlineInference:
         if not self.predictor.memory or not len(self.buffer):
             return
         columns, phi = self.buffer.columns, self.phi
+        if self.native is not None:     # the scan in C: the memory after every row at once
+            after = native.memory_scan(self.model, columns, self.estimate())
+            columns["memory"] = torch.cat([columns["memory"][:1], after[:-1]])
+            self.tip = after[-1:]
+            return
         columns["memory"] = self.predictor.memory_along(columns, phi)
         self.tip = self.predictor.memory_after({k: v[-1:] for k, v in columns.items()}, phi)
+
+    def _memory_after(self, rows: dict) -> torch.Tensor:
+        """A memory model's entries after the step of ``rows`` (one row), at the estimate."""
+        if self.native is not None:
+            return native.memory_scan(self.model, rows, self.estimate())
+        return self.predictor.memory_after(rows, self.phi)
 
     def residuals(self, columns: dict, target: torch.Tensor, phi: Phi) -> torch.Tensor:
         """The residuals whose mean square is the loss: eq. 9's position errors in units of
@@ -466,7 +477,7 @@ class OnlineInference:
         cfg = self.config
         values = {f: float(cfg.initial[f]) for f in self.model.phi_fields}
         values.update({f: math.exp(float(v)) for f, v in zip(self.fields, log_values)})
-        pred, dpred, short, dshort = self.native.coin_predict(self.model, columns, values, jacobian)
+        pred, dpred, short, dshort = self.native(self.model, columns, values, jacobian)
         columns_of = [("mass_kg", "mu_b", "mu_t").index(f) for f in self.fields]
         r = (pred - target) / cfg.residual_scale_m
         J = dpred[:, columns_of] / cfg.residual_scale_m if jacobian else None

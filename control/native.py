@@ -92,6 +92,10 @@ def memory_library() -> ctypes.CDLL | None:
     if lib is None:
         return None
     _declare(lib, "deapull_memory")
+    lib.deapull_memory_predict.argtypes = [ctypes.c_int] + [_D] * 14
+    lib.deapull_memory_scan.argtypes = [ctypes.c_int] + [_D] * 7 + [ctypes.c_double] * 2 + [_D] * 2
+    for name in ("predict", "scan"):
+        getattr(lib, f"deapull_memory_{name}").restype = ctypes.c_int
     return lib
 
 
@@ -283,8 +287,7 @@ def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
     rows = [_np(s[:, 0]), _np(s[:, 1]), _np(a[:, 1]), _np(columns["stroke_prev"]), _np(columns["stroke"]),
             _np(columns["fy"])]
     n = len(rows[0])
-    phys = np.array([float(phi["mass_kg"]), float(phi["mu_b"]), float(phi["mu_t"]), model.gravity_m_s2,
-                     model.slip_rate_reg_m_s, model.iterations], dtype=np.float64)
+    phys = _phys(model, phi)
     pred, short = np.empty(n), np.empty(n)
     dpred = np.empty((n, 3)) if derivatives else None
     dshort = np.empty((n, 3)) if derivatives else None
@@ -292,3 +295,51 @@ def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
                              _p(short), _p(dshort) if derivatives else None)
     as_t = (lambda v: None if v is None else torch.from_numpy(v))
     return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)
+
+
+def _phys(model, phi: dict) -> np.ndarray:
+    return np.array([float(phi["mass_kg"]), float(phi["mu_b"]), float(phi["mu_t"]), model.gravity_m_s2,
+                     model.slip_rate_reg_m_s, model.iterations], dtype=np.float64)
+
+
+def predictor(model):
+    """The compiled prediction of the online inference for ``model``'s kind
+    (:func:`coin_predict` or :func:`memory_predict`), or None where there is none."""
+    if not available(model):
+        return None
+    if model.can("compiled_mpc_memory"):
+        return memory_predict
+    return coin_predict if model.can("compiled_mpc") else None
+
+
+def memory_predict(model, columns: dict, phi: dict, derivatives: bool = True):
+    """:func:`coin_predict` for an f-memory ``model`` (``native_mpc_memory.c``): its cached rows
+    (``s``, ``a``, ``memory`` = (P, T) before the step, ``stroke``, ``compliance``, ``fy0``,
+    ``b`` at the step's voltage) through :func:`~deapull.surrogate.models.memory.tip_memory_step`
+    with the memory given. Same returns as :func:`coin_predict`."""
+    lib = memory_library()
+    s, a, memory = columns["s"], columns["a"], columns["memory"]
+    rows = [_np(s[:, 0]), _np(s[:, 1]), _np(a[:, 1]), _np(memory[:, 0]), _np(memory[:, 1]),
+            *(_np(columns[k]) for k in ("stroke", "compliance", "fy0", "b"))]
+    n = len(rows[0])
+    pred, short = np.empty(n), np.empty(n)
+    dpred = np.empty((n, 3)) if derivatives else None
+    dshort = np.empty((n, 3)) if derivatives else None
+    lib.deapull_memory_predict(n, *(_p(r) for r in rows), _p(_phys(model, phi)), _p(pred),
+                               _p(dpred) if derivatives else None, _p(short), _p(dshort) if derivatives else None)
+    as_t = (lambda v: None if v is None else torch.from_numpy(v))
+    return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)
+
+
+def memory_scan(model, columns: dict, phi: dict) -> torch.Tensor:
+    """The memory (P, T) after each of consecutive rows, the first starting from its own
+    ``memory`` entry and each next one from the row before's result (n, 2): the scan of
+    :meth:`~deapull.surrogate.models.memory.TipMemoryModel.memory_along`, in C."""
+    lib = memory_library()
+    s, a = columns["s"], columns["a"]
+    rows = [_np(s[:, 1]), _np(a[:, 1]), *(_np(columns[k]) for k in ("stroke", "compliance", "fy0", "b"))]
+    n = len(rows[0])
+    P0, T0 = (float(v) for v in columns["memory"][0])
+    P, T = np.empty(n), np.empty(n)
+    lib.deapull_memory_scan(n, *(_p(r) for r in rows), _p(_phys(model, phi)), P0, T0, _p(P), _p(T))
+    return torch.from_numpy(np.stack([P, T], axis=-1))

@@ -117,6 +117,29 @@ static double slope_of(const Model *M, const Parts *q, const Material *m)
     return 1.0 - M->mu_t * (q->pf * m->b * reg(q->s, eps) + (q->fy > 0.0 ? q->fy : 0.0) * dreg * ds);
 }
 
+/* The bracketed Newton solve of tip_memory_step from T_start (stopping per row): the root
+ * before the final Newton correction, which the caller takes (its gradients are the exact
+ * root's, by the implicit-function theorem) */
+static double bracketed_root(const Model *M, double u, double P, double T_start, const Material *m)
+{
+    double bound = (M->mu_t * fabs(m->fy0) / (1.0 - M->mu_t * fabs(m->b))) * (1 + 1e-9) + 1e-15;
+    double lo = -bound, hi = bound;
+    double T = fmin(fmax(T_start, lo), hi);
+    double change = hi - lo;
+    for (int it = 0; it < M->iterations; it++) {
+        Parts q = parts(M, T, u, P, m);
+        double r = residual(M, &q, T);
+        if (r < 0.0) lo = T; else hi = T;
+        double st = r / slope_of(M, &q, m);
+        int bisect = (T - st < lo) || (T - st > hi) || (2.0 * fabs(st) > fabs(change)) || !isfinite(st);
+        double previous = T;
+        T = bisect ? 0.5 * (lo + hi) : T - st;
+        change = T - previous;
+        if (fabs(change) <= 1e-14 * (fabs(T) + 1e-9)) break;
+    }
+    return T;
+}
+
 /* One step ξ' = f(ξ, ν) in scaled units; A (5×5, row-major) = ∂ξ'/∂ξ and Bv (5) = ∂ξ'/∂ν
  * when A is not NULL. */
 static void step(const Model *M, const double *xi, double nu, double *out, double *A, double *Bv)
@@ -127,26 +150,10 @@ static void step(const Model *M, const double *xi, double nu, double *out, doubl
     double Vn = fmin(fmax(Vr, 0.0), M->vmax);
     double mask = (Vr >= 0.0 && Vr <= M->vmax) ? 1.0 : 0.0;
     Material m = material(M, Vn);
-    /* the bracketed Newton solve of tip_memory_step */
-    double bound = (M->mu_t * fabs(m.fy0) / (1.0 - M->mu_t * fabs(m.b))) * (1 + 1e-9) + 1e-15;
-    double lo = -bound, hi = bound;
-    double T = fmin(fmax(Tprev, lo), hi);
-    double change = hi - lo;
-    for (int it = 0; it < M->iterations; it++) {
-        Parts q = parts(M, T, u, P, &m);
-        double r = residual(M, &q, T);
-        if (r < 0.0) lo = T; else hi = T;
-        double st = r / slope_of(M, &q, &m);
-        int bisect = (T - st < lo) || (T - st > hi) || (2.0 * fabs(st) > fabs(change)) || !isfinite(st);
-        double previous = T;
-        T = bisect ? 0.5 * (lo + hi) : T - st;
-        change = T - previous;
-        if (fabs(change) <= 1e-14 * (fabs(T) + 1e-9)) break;
-    }
-    Parts q0 = parts(M, T, u, P, &m);
+    double T0 = bracketed_root(M, u, P, Tprev, &m);
+    Parts q0 = parts(M, T0, u, P, &m);
     double sl = slope_of(M, &q0, &m);
-    double T0 = T;
-    T = T0 - residual(M, &q0, T0) / sl;
+    double T = T0 - residual(M, &q0, T0) / sl;
     Parts q = parts(M, T, u, P, &m);
     double un = q.u_next;
     out[0] = (x + dt * un) / M->xu;
@@ -212,3 +219,103 @@ static void step(const Model *M, const double *xi, double nu, double *out, doubl
  * passes as native_mpc.c's, over this file's state of width NX = 5 */
 #define ILQR_EXPORT(name) deapull_memory_##name
 #include "ilqr_passes.h"
+
+/* ---- online inference (deapull.control.inference with an f-memory f_a) -------------------
+ * The inference's rows carry m at the step's voltage (X, c, Fy0, b: evaluated once, θ fixed)
+ * and the tip's memory before the step (P, T), so only the step itself depends on φ.
+ * phys = (m_c, μ_b, μ_t, g, ε_v, iterations). */
+
+static Model inference_model(const double *phys, double dt)
+{
+    Model M;
+    memset(&M, 0, sizeof M);
+    M.mass = phys[0]; M.mu_b = phys[1]; M.mu_t = phys[2]; M.grav = phys[3]; M.eps = phys[4];
+    M.iterations = (int)phys[5]; M.dt = dt;
+    return M;
+}
+
+static Material given_material(double X, double c, double fy0, double b)
+{
+    Material m;
+    memset(&m, 0, sizeof m);
+    m.X = X; m.c = c; m.fy0 = fy0; m.b = b;
+    return m;
+}
+
+/* x̂' of n rows (coin position x, velocity u, step Δt, memory P, T, and m at V': X, c, Fy0, b)
+ * and the stick shortfall (μ_b N − |T' + m_c u/Δt|)⁺ Δt/m_c where the step holds the coin
+ * (0 elsewhere), as TipMemoryModel.predict_with_shortfall; with dpred and dshort not NULL
+ * their derivatives in log m_c, log μ_b, log μ_t (n × 3, row-major), as autograd gives them
+ * through the final Newton correction (T0 fixed, the slope at T0 a constant). */
+int deapull_memory_predict(int n, const double *x, const double *u, const double *dts, const double *P,
+                           const double *Tprev, const double *X, const double *c, const double *fy0,
+                           const double *b, const double *phys, double *pred, double *dpred, double *shortfall,
+                           double *dshort)
+{
+    for (int i = 0; i < n; i++) {
+        const double dt = dts[i];
+        Model M = inference_model(phys, dt);
+        Material m = given_material(X[i], c[i], fy0[i], b[i]);
+        const double mass = M.mass, mu_b = M.mu_b, mu_t = M.mu_t, ratio = mass / dt, eps = M.eps;
+        double T0 = bracketed_root(&M, u[i], P[i], Tprev[i], &m);
+        Parts q0 = parts(&M, T0, u[i], P[i], &m);
+        double sl = slope_of(&M, &q0, &m);
+        double T = T0 - residual(&M, &q0, T0) / sl;
+        Parts q = parts(&M, T, u[i], P[i], &m);
+        pred[i] = x[i] + dt * q.u_next;
+        double nraw = mass * M.grav + q.fy, normal = nraw > 0.0 ? nraw : 0.0;
+        double R = T + ratio * u[i], D = mu_b * normal - fabs(R);
+        int stuck = q.u_next == 0.0;
+        shortfall[i] = stuck && D > 0.0 ? D * dt / mass : 0.0;
+        if (!dpred) continue;
+        /* ∂u'/∂(m_c, μ_b) at fixed T of a slipping step, at T0 (for ∂r) and at T (the output) */
+        double du0[3] = {0.0, 0.0, 0.0}, du[3] = {0.0, 0.0, 0.0};
+        if (q0.slip) {
+            double n0 = mass * M.grav + q0.fy > 0.0 ? mass * M.grav + q0.fy : 0.0;
+            du0[0] = -q0.sgn * mu_b * q0.pn * M.grav * dt / mass - (T0 - q0.sgn * mu_b * n0) * dt / (mass * mass);
+            du0[1] = -q0.sgn * n0 * dt / mass;
+        }
+        if (q.slip) {
+            du[0] = -q.sgn * mu_b * q.pn * M.grav * dt / mass - (T - q.sgn * mu_b * normal) * dt / (mass * mass);
+            du[1] = -q.sgn * normal * dt / mass;
+        }
+        /* r = T − μ_t Fy⁺ reg(s), s = (P' − P)/Δt − u': ∂r/∂φ = k ∂u'/∂φ − [μ_t] Fy⁺ reg(s) */
+        double fyp0 = q0.fy > 0.0 ? q0.fy : 0.0, qq = q0.s * q0.s + eps * eps;
+        double k = mu_t * fyp0 * eps * eps / (qq * sqrt(qq));
+        double dr[3] = {k * du0[0], k * du0[1], -fyp0 * reg(q0.s, eps)};
+        double du_T = q.slip ? (1.0 - q.sgn * mu_b * m.b * q.pn) / ratio : 0.0;
+        double phi[3] = {mass, mu_b, mu_t};
+        for (int j = 0; j < 3; j++) {
+            double dT = -dr[j] / sl;
+            dpred[3 * i + j] = dt * (du_T * dT + du[j]) * phi[j];
+            double dsh = 0.0;
+            if (stuck && D > 0.0) {
+                double sR = R > 0.0 ? 1.0 : (R < 0.0 ? -1.0 : 0.0);
+                double dcap = mu_b * q.pn * ((j == 0 ? M.grav : 0.0) + m.b * dT) + (j == 1 ? normal : 0.0);
+                double dR = dT + (j == 0 ? u[i] / dt : 0.0);
+                dsh = (dcap - sR * dR) * dt / mass - (j == 0 ? D * dt / (mass * mass) : 0.0);
+            }
+            dshort[3 * i + j] = dsh * phi[j];
+        }
+    }
+    return 0;
+}
+
+/* The memory along n consecutive rows: row 0 starts from (P0, T0); P_out[i], T_out[i] is the
+ * memory after row i's step, which row i + 1 starts from (TipMemoryModel.memory_along's scan) */
+int deapull_memory_scan(int n, const double *u, const double *dts, const double *X, const double *c,
+                        const double *fy0, const double *b, const double *phys, double P0, double T0,
+                        double *P_out, double *T_out)
+{
+    double P = P0, T = T0;
+    for (int i = 0; i < n; i++) {
+        Model M = inference_model(phys, dts[i]);
+        Material m = given_material(X[i], c[i], fy0[i], b[i]);
+        double Tr = bracketed_root(&M, u[i], P, T, &m);
+        Parts q0 = parts(&M, Tr, u[i], P, &m);
+        T = Tr - residual(&M, &q0, Tr) / slope_of(&M, &q0, &m);
+        P = m.X - m.c * T;
+        P_out[i] = P; T_out[i] = T;
+    }
+    return 0;
+}

@@ -80,13 +80,20 @@ def test_native_solver_gives_the_torch_solvers_plans(pair, final):
     torch.testing.assert_close(mixed.history, ref.history, rtol=1e-10, atol=1e-10)
 
 
-def test_native_inference_residuals_jacobian_and_steps_are_torchs(trained, sweep):
+@pytest.mark.parametrize("kind", ["f-coulomb", "f-memory"])
+def test_native_inference_residuals_jacobian_and_steps_are_torchs(trained, sweep, kind):
     """The Levenberg–Marquardt inference in C (residuals of eq. 9 plus the stick hinge and
     their Jacobian in log φ) against autograd through the torch model, and the estimates
-    after 20 updates of each."""
+    after 20 updates of each. For f-memory also the tip's memory the buffer carries, as each
+    row is added and as every update re-derives it along the buffer (``memory_scan``).
+
+    f-memory's half broken once each way (then restored): (1) ∂u'/∂m_c of a slipping step
+    without its gravity term in ``deapull_memory_predict`` (native_mpc_memory.c): the
+    Jacobian's comparison failed; (2) the scan's P left at the row's start (``P = P`` for
+    ``P = m.X - m.c * T``): the carried memory's comparison failed."""
     from deapull.control.inference import InferenceConfig, OnlineInference
     from deapull.control.plants import SurrogatePlant
-    model = trained("f-coulomb").model
+    model = trained(kind).model
     plant = SurrogatePlant(model, model.phi_of(sweep["C1"]))
     runs = {e: OnlineInference(model, InferenceConfig(optimizer="lm", engine=e), 1e-3) for e in ("torch", "native")}
     assert runs["torch"].native is None and runs["native"].native is not None
@@ -97,6 +104,11 @@ def test_native_inference_residuals_jacobian_and_steps_are_torchs(trained, sweep
         x = float(plant.step(V)[0])
         for inf in runs.values():
             inf.observe(x, V)
+    memory = kind == "f-memory"
+    if memory:                                  # carried row by row at the start's estimate
+        torch.testing.assert_close(runs["native"].buffer.columns["memory"], runs["torch"].buffer.columns["memory"],
+                                   rtol=1e-9, atol=1e-15)
+        assert float(runs["torch"].buffer.columns["memory"][:, 1].abs().max()) > 1e-4   # the tip carries friction
     inf = runs["native"]
     columns, target = inf._sample()
     log_phi = torch.log(torch.tensor([2e-3, 0.3, 0.4], dtype=F64))
@@ -112,6 +124,10 @@ def test_native_inference_residuals_jacobian_and_steps_are_torchs(trained, sweep
     torch.testing.assert_close(J_c, J, rtol=1e-7, atol=1e-11 * float(J.abs().max()))
     for inf in runs.values():
         inf.update(20)
+    if memory:                                  # re-derived along the buffer at the estimate after update 20
+        torch.testing.assert_close(runs["native"].buffer.columns["memory"], runs["torch"].buffer.columns["memory"],
+                                   rtol=1e-6, atol=1e-12)
+        torch.testing.assert_close(runs["native"].tip, runs["torch"].tip, rtol=1e-6, atol=1e-12)
     a, b = runs["torch"].estimate(), runs["native"].estimate()
     assert a != InferenceConfig().initial
     for f in a:
