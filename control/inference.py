@@ -49,6 +49,8 @@ log = logging.getLogger(__name__)
 #: the initial values: the paper's m_c = 0.001 g; μ_b, μ_t below every setup's truth
 INITIAL = {"mass_kg": 1e-6, "mu_b": 0.15, "mu_t": 0.4, "v_threshold_V": 150.0}
 OPTIMIZERS = ("adam", "lm")
+#: where the one-step loss and its Jacobian are evaluated (:attr:`InferenceConfig.engine`)
+ENGINES = ("auto", "native", "torch")
 #: the box each field is kept in while inferred (SI units), physical: a coin from the paper's
 #: start (0.001 g) to 100 g; dry friction coefficients of elastomer and steel pairs from 0.01 to 2
 BOUNDS = {"mass_kg": (1e-6, 0.1), "mu_b": (1e-2, 2.0), "mu_t": (1e-2, 2.0), "v_threshold_V": (1.0, 1e4)}
@@ -148,8 +150,8 @@ class InferenceConfig:
                              f"{self.residual_scale_m} > 0")
         if self.optimizer not in OPTIMIZERS:
             raise InputError(f"inference optimizer {self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
-        if self.engine not in ("auto", "native", "torch"):
-            raise InputError(f"inference engine {self.engine!r}: choose one of auto, native, torch")
+        if self.engine not in ENGINES:
+            raise InputError(f"inference engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
         for f, spec in (self.prior or {}).items():
             if f not in BOUNDS:
                 raise InputError(f"inference prior: unknown field {f!r}; choose from {', '.join(BOUNDS)}")

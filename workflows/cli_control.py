@@ -38,6 +38,7 @@ def control_config(args):
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
         mpc_oracle=args.mpc_oracle, unreachable=args.unreachable, infer_optimizer=args.infer_optimizer,
+        infer_engine=args.infer_engine,
         infer_loss=args.infer_loss, infer_every=args.infer_every, plant_phi=control.parse_plant_phi(args.plant_phi),
         infer_fields=None if args.infer_fields is None else tuple(f.strip() for f in args.infer_fields.split(",") if f.strip()),
         **mpc_settings(args),
@@ -146,6 +147,10 @@ def register(sub) -> None:
     p.add_argument("--infer-optimizer", default="lm", choices=("lm", "adam"),
                    help="the online inference's optimiser: lm (Levenberg-Marquardt, default) or adam (the paper's "
                         "Adam, Algorithm 2)")
+    p.add_argument("--infer-engine", default="auto", choices=("auto", "native", "torch"),
+                   help="where the one-step inference evaluates f_a and its Jacobian in φ: native (compiled, "
+                        "f-coulomb and f-memory), torch (autograd through the model), auto (native where "
+                        "available; default). The same estimates to round-off")
     p.add_argument("--infer-loss", default="step", choices=("step", "rollout"),
                    help="what φ is fitted to: step (the paper's one-step predictions from the observed state, "
                         "default) or rollout (f_a's open-loop rollout of the whole episode against every observed "

@@ -41,7 +41,7 @@ from deapull import provenance
 from deapull import scene as scenes
 from deapull.control.dynamics import COSTS
 from deapull.control.harness import PHI_FIELDS, Bench, Episode, Task, run_episode
-from deapull.control.inference import COIN_PRIOR, InferenceConfig
+from deapull.control.inference import COIN_PRIOR, ENGINES as INFER_ENGINES, InferenceConfig
 from deapull.control.mpc_policy import INFER_LOSSES, MPCConfig
 from deapull.control.policies import SAC_FILE
 from deapull.surrogate import store
@@ -119,6 +119,7 @@ class ControlConfig:
     mpc_recentre: float = MPCConfig.recentre_stds
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
+    infer_engine: str = "auto"
     infer_loss: str = "step"
     infer_every: int = 10
     plant_phi: dict | None = None
@@ -241,13 +242,15 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
         if mpc_model_trained:
             _require_model(Path(config.mpc_model), "--mpc-model")
             if not (config.mpc_oracle or config.mpc_no_infer):
-                _require_inference(Path(config.mpc_model))
+                _require_inference(Path(config.mpc_model), config.infer_engine)
     return unreachable
 
 
-def _require_inference(folder: Path) -> None:
+def _require_inference(folder: Path, engine: str = "auto") -> None:
     """The MPC infers φ online with its own f_a: refuse a kind that cannot before any
-    model is loaded, naming the options that plan with a given φ instead."""
+    model is loaded, naming the options that plan with a given φ instead; with
+    ``--infer-engine native``, refuse a kind without a compiled inference (or no C compiler)."""
+    from deapull.control import native
     from deapull.surrogate import store
     from deapull.surrogate.models import registry
     kind = store.kind_of(folder)
@@ -256,6 +259,14 @@ def _require_inference(folder: Path) -> None:
         raise InputError(f"--mpc-model {str(folder)!r}: its kind {kind!r} cannot infer φ online (capability "
                          f"'infer'); plan with a given φ: --mpc-no-infer --phi-prior coins (the prior's median) "
                          f"or --mpc-oracle (the plant's true φ)")
+    if engine == "native" and cls is not None:
+        memory = "compiled_mpc_memory" in cls.capabilities
+        if not (memory or "compiled_mpc" in cls.capabilities):
+            raise InputError(f"--infer-engine native: the kind {kind!r} of --mpc-model {str(folder)!r} has no "
+                             f"compiled inference (f-coulomb and f-memory have); use --infer-engine auto or torch")
+        if (native.memory_library() if memory else native.library()) is None:
+            raise InputError("--infer-engine native: no C compiler here (or DEAPULL_NATIVE=0); use --infer-engine "
+                             "auto or torch")
 
 
 def check_fem(config: ControlConfig) -> dict:
@@ -350,6 +361,8 @@ def check_inference(config: ControlConfig) -> None:
     if unknown or (config.infer_fields is not None and not config.infer_fields):
         raise InputError(f"--infer-fields {','.join(config.infer_fields or ())!r}: choose one or more of "
                          f"{', '.join(PLANT_PHI_FIELDS)} (the rest stay at the prior's median)")
+    if config.infer_engine not in INFER_ENGINES:
+        raise InputError(f"--infer-engine {config.infer_engine!r}: choose one of {', '.join(INFER_ENGINES)}")
     if config.infer_loss == "rollout" and config.infer_optimizer != "lm":
         raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, not "
                          f"{config.infer_optimizer!r}")
@@ -406,6 +419,7 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
                      reach_gate=config.mpc_reach_gate,
                      recentre_stds=0.0 if plain else config.mpc_recentre,
                      inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior,
+                                               engine=config.infer_engine,
                                                fields=config.infer_fields),
                      infer_loss=config.infer_loss, infer_every=config.infer_every)
 
