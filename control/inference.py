@@ -268,7 +268,7 @@ class OnlineInference:
         if missing:
             raise InputError(f"no initial value for {', '.join(missing)} (InferenceConfig.initial)")
         self.predictor = Predictor(self.model)
-        self.native = native.predictor(model) if config.engine != "torch" else None
+        self.native = native.predictor(model.capabilities) if config.engine != "torch" else None
         if config.engine == "native" and self.native is None:
             raise InputError(f"the native inference needs a model with the 'compiled_mpc' or 'compiled_mpc_memory' "
                              f"capability and a C compiler (model: {model.kind!r})")

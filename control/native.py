@@ -286,15 +286,7 @@ def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
     s, a = columns["s"], columns["a"]
     rows = [_np(s[:, 0]), _np(s[:, 1]), _np(a[:, 1]), _np(columns["stroke_prev"]), _np(columns["stroke"]),
             _np(columns["fy"])]
-    n = len(rows[0])
-    phys = _phys(model, phi)
-    pred, short = np.empty(n), np.empty(n)
-    dpred = np.empty((n, 3)) if derivatives else None
-    dshort = np.empty((n, 3)) if derivatives else None
-    lib.deapull_coin_predict(n, *(_p(r) for r in rows), _p(phys), _p(pred), _p(dpred) if derivatives else None,
-                             _p(short), _p(dshort) if derivatives else None)
-    as_t = (lambda v: None if v is None else torch.from_numpy(v))
-    return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)
+    return _predict(lib.deapull_coin_predict, rows, _phys(model, phi), derivatives)
 
 
 def _phys(model, phi: dict) -> np.ndarray:
@@ -302,14 +294,28 @@ def _phys(model, phi: dict) -> np.ndarray:
                      model.slip_rate_reg_m_s, model.iterations], dtype=np.float64)
 
 
-def predictor(model):
-    """The compiled prediction of the online inference for ``model``'s kind
-    (:func:`coin_predict` or :func:`memory_predict`), or None where there is none."""
-    if not available(model):
-        return None
-    if model.can("compiled_mpc_memory"):
-        return memory_predict
-    return coin_predict if model.can("compiled_mpc") else None
+def _predict(fn, rows: list, phys: np.ndarray, derivatives: bool):
+    """Call a compiled prediction (``deapull_coin_predict`` / ``deapull_memory_predict``) on the
+    row columns ``rows`` and return its outputs as tensors (see :func:`coin_predict`)."""
+    n = len(rows[0])
+    pred, short = np.empty(n), np.empty(n)
+    dpred = np.empty((n, 3)) if derivatives else None
+    dshort = np.empty((n, 3)) if derivatives else None
+    fn(n, *(_p(r) for r in rows), _p(phys), _p(pred), _p(dpred) if derivatives else None, _p(short),
+       _p(dshort) if derivatives else None)
+    as_t = (lambda v: None if v is None else torch.from_numpy(v))
+    return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)
+
+
+def predictor(capabilities):
+    """The compiled prediction of the online inference for a kind with ``capabilities``
+    (:func:`coin_predict` or :func:`memory_predict`), or None where the kind has none or no C
+    compiler is at hand (``deapull control --infer-engine native`` checks this before loading)."""
+    if "compiled_mpc_memory" in capabilities:
+        return memory_predict if memory_library() is not None else None
+    if "compiled_mpc" in capabilities:
+        return coin_predict if library() is not None else None
+    return None
 
 
 def memory_predict(model, columns: dict, phi: dict, derivatives: bool = True):
@@ -321,14 +327,7 @@ def memory_predict(model, columns: dict, phi: dict, derivatives: bool = True):
     s, a, memory = columns["s"], columns["a"], columns["memory"]
     rows = [_np(s[:, 0]), _np(s[:, 1]), _np(a[:, 1]), _np(memory[:, 0]), _np(memory[:, 1]),
             *(_np(columns[k]) for k in ("stroke", "compliance", "fy0", "b"))]
-    n = len(rows[0])
-    pred, short = np.empty(n), np.empty(n)
-    dpred = np.empty((n, 3)) if derivatives else None
-    dshort = np.empty((n, 3)) if derivatives else None
-    lib.deapull_memory_predict(n, *(_p(r) for r in rows), _p(_phys(model, phi)), _p(pred),
-                               _p(dpred) if derivatives else None, _p(short), _p(dshort) if derivatives else None)
-    as_t = (lambda v: None if v is None else torch.from_numpy(v))
-    return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)
+    return _predict(lib.deapull_memory_predict, rows, _phys(model, phi), derivatives)
 
 
 def memory_scan(model, columns: dict, phi: dict) -> torch.Tensor:

@@ -140,6 +140,21 @@ static double bracketed_root(const Model *M, double u, double P, double T_start,
     return T;
 }
 
+/* The step's friction T' at one row: the bracketed root T0, the slope there, and one more Newton
+ * correction T = T0 − r(T0)/r'(T0) (whose gradients are the exact root's), with the parts at both */
+typedef struct { double T0, T, sl; Parts q0, q; } Root;
+
+static Root solve_step(const Model *M, double u, double P, double T_start, const Material *m)
+{
+    Root s;
+    s.T0 = bracketed_root(M, u, P, T_start, m);
+    s.q0 = parts(M, s.T0, u, P, m);
+    s.sl = slope_of(M, &s.q0, m);
+    s.T = s.T0 - residual(M, &s.q0, s.T0) / s.sl;
+    s.q = parts(M, s.T, u, P, m);
+    return s;
+}
+
 /* One step ξ' = f(ξ, ν) in scaled units; A (5×5, row-major) = ∂ξ'/∂ξ and Bv (5) = ∂ξ'/∂ν
  * when A is not NULL. */
 static void step(const Model *M, const double *xi, double nu, double *out, double *A, double *Bv)
@@ -150,11 +165,9 @@ static void step(const Model *M, const double *xi, double nu, double *out, doubl
     double Vn = fmin(fmax(Vr, 0.0), M->vmax);
     double mask = (Vr >= 0.0 && Vr <= M->vmax) ? 1.0 : 0.0;
     Material m = material(M, Vn);
-    double T0 = bracketed_root(M, u, P, Tprev, &m);
-    Parts q0 = parts(M, T0, u, P, &m);
-    double sl = slope_of(M, &q0, &m);
-    double T = T0 - residual(M, &q0, T0) / sl;
-    Parts q = parts(M, T, u, P, &m);
+    Root root = solve_step(M, u, P, Tprev, &m);
+    const double T0 = root.T0, sl = root.sl, T = root.T;
+    const Parts q0 = root.q0, q = root.q;
     double un = q.u_next;
     out[0] = (x + dt * un) / M->xu;
     out[1] = un / M->uu;
@@ -242,6 +255,17 @@ static Material given_material(double X, double c, double fy0, double b)
     return m;
 }
 
+/* ∂u'/∂(m_c, μ_b, μ_t) at fixed T (0 for a held step; μ_t does not enter u' directly):
+ * u' = u + (T − sgn μ_b N) Δt/m_c,  N = max(m_c g + Fy, 0) */
+static void slip_partials(const Model *M, const Parts *q, double T, double du[3])
+{
+    du[0] = du[1] = du[2] = 0.0;
+    if (!q->slip) return;
+    const double mass = M->mass, dt = M->dt, nraw = mass * M->grav + q->fy, normal = nraw > 0.0 ? nraw : 0.0;
+    du[0] = -q->sgn * M->mu_b * q->pn * M->grav * dt / mass - (T - q->sgn * M->mu_b * normal) * dt / (mass * mass);
+    du[1] = -q->sgn * normal * dt / mass;
+}
+
 /* x̂' of n rows (coin position x, velocity u, step Δt, memory P, T, and m at V': X, c, Fy0, b)
  * and the stick shortfall (μ_b N − |T' + m_c u/Δt|)⁺ Δt/m_c where the step holds the coin
  * (0 elsewhere), as TipMemoryModel.predict_with_shortfall; with dpred and dshort not NULL
@@ -257,28 +281,19 @@ int deapull_memory_predict(int n, const double *x, const double *u, const double
         Model M = inference_model(phys, dt);
         Material m = given_material(X[i], c[i], fy0[i], b[i]);
         const double mass = M.mass, mu_b = M.mu_b, mu_t = M.mu_t, ratio = mass / dt, eps = M.eps;
-        double T0 = bracketed_root(&M, u[i], P[i], Tprev[i], &m);
-        Parts q0 = parts(&M, T0, u[i], P[i], &m);
-        double sl = slope_of(&M, &q0, &m);
-        double T = T0 - residual(&M, &q0, T0) / sl;
-        Parts q = parts(&M, T, u[i], P[i], &m);
+        Root root = solve_step(&M, u[i], P[i], Tprev[i], &m);
+        const double T = root.T, sl = root.sl;
+        const Parts q0 = root.q0, q = root.q;
         pred[i] = x[i] + dt * q.u_next;
         double nraw = mass * M.grav + q.fy, normal = nraw > 0.0 ? nraw : 0.0;
         double R = T + ratio * u[i], D = mu_b * normal - fabs(R);
         int stuck = q.u_next == 0.0;
         shortfall[i] = stuck && D > 0.0 ? D * dt / mass : 0.0;
         if (!dpred) continue;
-        /* ∂u'/∂(m_c, μ_b) at fixed T of a slipping step, at T0 (for ∂r) and at T (the output) */
-        double du0[3] = {0.0, 0.0, 0.0}, du[3] = {0.0, 0.0, 0.0};
-        if (q0.slip) {
-            double n0 = mass * M.grav + q0.fy > 0.0 ? mass * M.grav + q0.fy : 0.0;
-            du0[0] = -q0.sgn * mu_b * q0.pn * M.grav * dt / mass - (T0 - q0.sgn * mu_b * n0) * dt / (mass * mass);
-            du0[1] = -q0.sgn * n0 * dt / mass;
-        }
-        if (q.slip) {
-            du[0] = -q.sgn * mu_b * q.pn * M.grav * dt / mass - (T - q.sgn * mu_b * normal) * dt / (mass * mass);
-            du[1] = -q.sgn * normal * dt / mass;
-        }
+        /* ∂u'/∂φ at fixed T, at T0 (for ∂r) and at T (the output) */
+        double du0[3], du[3];
+        slip_partials(&M, &q0, root.T0, du0);
+        slip_partials(&M, &q, T, du);
         /* r = T − μ_t Fy⁺ reg(s), s = (P' − P)/Δt − u': ∂r/∂φ = k ∂u'/∂φ − [μ_t] Fy⁺ reg(s) */
         double fyp0 = q0.fy > 0.0 ? q0.fy : 0.0, qq = q0.s * q0.s + eps * eps;
         double k = mu_t * fyp0 * eps * eps / (qq * sqrt(qq));
@@ -311,10 +326,9 @@ int deapull_memory_scan(int n, const double *u, const double *dts, const double 
     for (int i = 0; i < n; i++) {
         Model M = inference_model(phys, dts[i]);
         Material m = given_material(X[i], c[i], fy0[i], b[i]);
-        double Tr = bracketed_root(&M, u[i], P, T, &m);
-        Parts q0 = parts(&M, Tr, u[i], P, &m);
-        T = Tr - residual(&M, &q0, Tr) / slope_of(&M, &q0, &m);
-        P = m.X - m.c * T;
+        Root root = solve_step(&M, u[i], P, T, &m);
+        T = root.T;
+        P = root.q.P_next;
         P_out[i] = P; T_out[i] = T;
     }
     return 0;

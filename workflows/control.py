@@ -259,14 +259,10 @@ def _require_inference(folder: Path, engine: str = "auto") -> None:
         raise InputError(f"--mpc-model {str(folder)!r}: its kind {kind!r} cannot infer φ online (capability "
                          f"'infer'); plan with a given φ: --mpc-no-infer --phi-prior coins (the prior's median) "
                          f"or --mpc-oracle (the plant's true φ)")
-    if engine == "native" and cls is not None:
-        memory = "compiled_mpc_memory" in cls.capabilities
-        if not (memory or "compiled_mpc" in cls.capabilities):
-            raise InputError(f"--infer-engine native: the kind {kind!r} of --mpc-model {str(folder)!r} has no "
-                             f"compiled inference (f-coulomb and f-memory have); use --infer-engine auto or torch")
-        if (native.memory_library() if memory else native.library()) is None:
-            raise InputError("--infer-engine native: no C compiler here (or DEAPULL_NATIVE=0); use --infer-engine "
-                             "auto or torch")
+    if engine == "native" and cls is not None and native.predictor(cls.capabilities) is None:
+        raise InputError(f"--infer-engine native: the kind {kind!r} of --mpc-model {str(folder)!r} has no compiled "
+                         f"inference here (f-coulomb and f-memory have one where a C compiler is at hand and "
+                         f"DEAPULL_NATIVE is not 0); use --infer-engine auto or torch")
 
 
 def check_fem(config: ControlConfig) -> dict:
