@@ -48,7 +48,7 @@ excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --setups C1,C3,C5,C7 --protocols excitation \
 		--out $(DATA)/excitation
 
-bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the converged reference, Newton its, 8-setup sweep; beside ABAQUS 130 s
+bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the committed contact-ladder reference (its bound and what it leaves out), Newton its, 8-setup sweep; beside ABAQUS 130 s
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP) --fidelity '$(FIDELITY)'
 
 bench-blas: setup ## the resolved Jacobian's LU (MUMPS, UMFPACK) with the system BLAS (OpenBLAS) vs the reference BLAS, same run; BLAS_SOLVE=1 adds the whole C3 ramp under both

@@ -88,7 +88,7 @@ def register(sub) -> None:
     _common(p)
     p.set_defaults(func=cmd_stability)
 
-    p = sub.add_parser("fem-study", help="FEM accuracy studies of coin_pull C3: the converged reference's "
+    p = sub.add_parser("fem-study", help="FEM accuracy studies of coin_pull C3: the contact-ladder reference's "
                                          "convergence table and bound, and each study's cases against it "
                                          "(default: the shipped default and its contact rule doubled; resumes)")
     fem_study.add_arguments(p)

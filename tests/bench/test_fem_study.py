@@ -207,3 +207,56 @@ def test_the_pause_studys_ladders_state_a_bound_from_the_tip_zone_the_underside_
     [stated] = [x for x in lines if x.startswith("stated bound")]
     total = gci + 0.002 * f[0.25] + 1e-6
     assert f"± {1e3 * total:.4f} mm" in stated and f"({100 * total / 1.15e-3:.2f} %" in stated
+
+
+def _beyond(folder, runs, bound_rel=None):
+    """A ``beyond_the_ladder.json`` in ``folder``: ``runs`` as (travel_m, resolved_same_step_m)."""
+    import json
+    doc = {"runs": [{"refines": f"direction {i}", "dofs": 1000 * (i + 1), "dt_max_s": 0.005, "travel_m": t,
+                     "resolved_same_step_m": r} for i, (t, r) in enumerate(runs)]}
+    if bound_rel is not None:
+        doc["finest_ladder"] = {"bound_rel": bound_rel}
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "beyond_the_ladder.json").write_text(json.dumps(doc))
+
+
+def test_the_ladders_table_says_what_its_bound_leaves_out(tmp_path, monkeypatch):
+    """A reference whose ladder refines some directions only: the runs refined in the others
+    (``beyond_the_ladder.json``, the folder's own before the committed one) are listed under the
+    table with their change against ``resolved`` at the same step, and the table says that no
+    bound ≤ 1 % is stated and that the error is likely the smallest change or more. Without such
+    runs the table is the ladder's alone. Broken once: the smallest change taken by sign (−10 %,
+    not the +4 % nearest zero)."""
+    import json
+
+    from deapull.workflows import fem_study
+    ref = {"cases": ["a", "b", "c"], "travel_m": [1.2e-3, 1.1e-3, 1.1e-3], "dofs": [1, 2, 3], "wall_s": [1, 2, 3],
+           "observed_order": float("nan"), "travel_extrapolated_m": 1.1e-3, "travel_error_bound_m": 3.3e-6,
+           "travel_error_bound_rel": 0.003, "error_bound_rel": 0.003}
+    folder = tmp_path / "ref"
+    folder.mkdir()
+    (folder / "reference.json").write_text(json.dumps(ref))
+    monkeypatch.setattr(fem_study, "COMMITTED_REFERENCE", tmp_path / "committed")
+    assert "beyond" not in fem_study.ladder_table(fem_study.load_reference(folder))
+    _beyond(tmp_path / "committed", [(0.9e-3, 1.0e-3)])
+    _beyond(folder, [(0.9e-3, 1.0e-3), (1.04e-3, 1.0e-3), (1.15e-3, 1.25e-3)], bound_rel=0.043)
+    loaded = fem_study.load_reference(folder)
+    gap = fem_study.ladder_gap(loaded)
+    assert gap["least_rel"] == pytest.approx(0.04) and gap["most_rel"] == pytest.approx(-0.1)
+    table = fem_study.ladder_table(loaded)
+    assert re.search(r"direction 2: 3,000 dofs, dt 0.005 s, travel 1.1500 mm, -8.0 %", table), table
+    assert "moves the travel +4.0 % to -10.0 %" in table and "bound 4.3 %" in table
+    assert "none ≤ 1 % (goal)" in table and "likely 4.0 % or more" in table
+    # a folder without its own runs takes the committed ones
+    (folder / "beyond_the_ladder.json").unlink()
+    assert fem_study.ladder_gap(fem_study.load_reference(folder))["most_rel"] == pytest.approx(-0.1)
+
+
+def test_the_committed_reference_carries_the_runs_beyond_its_ladder():
+    """The committed reference (bench/reference) and its runs beyond the ladder: the layers move
+    the travel 5 % or more, so the printed table states no bound ≤ 1 %."""
+    from deapull.workflows import fem_study
+    ref = fem_study.load_reference(fem_study.COMMITTED_REFERENCE)
+    gap = fem_study.ladder_gap(ref)
+    assert gap is not None and abs(gap["least_rel"]) > 0.04 and len(gap["runs"]) >= 4
+    assert "stated bound on the reference: none ≤ 1 % (goal)" in fem_study.ladder_table(ref)

@@ -67,7 +67,9 @@ def test_the_points_are_exactly_those_of_the_result_files(tmp_path):
     assert len(sources) == 2 and sources == sorted(sources), sources
 
 
-def test_the_contact_convergence_levels_come_from_the_reference_file(tmp_path):
+def test_the_contact_convergence_levels_come_from_the_reference_file(tmp_path, monkeypatch):
+    from deapull.workflows import fem_study
+    monkeypatch.setattr(fem_study, "COMMITTED_REFERENCE", tmp_path / "none")
     path = tmp_path / "reference.json"
     path.write_text(json.dumps({"cases": ["a", "b"], "travel_m": [1.01e-3, 1.0e-3], "wall_s": [10.0, 40.0],
                                 "travel_ref_m": 1.0e-3, "error_bound_rel": 0.01}))
@@ -75,6 +77,27 @@ def test_the_contact_convergence_levels_come_from_the_reference_file(tmp_path):
     assert [(p["label"], p["metric"], p["wall_s"]) for p in points] == [("a", "travel error", 10.0),
                                                                         ("b", "travel error bound", 40.0)]
     assert np.allclose([p["error_pct"] for p in points], [1.0, 1.0])
+
+
+def test_the_reference_refined_beyond_its_ladder_gets_an_at_least_point(tmp_path):
+    """Runs refined beyond the reference's ladder (its folder's ``beyond_the_ladder.json``): the
+    finest level gets, beside its ladder's bound (▼), a point at the smallest change they measured
+    (▲: its error is likely at least that), whose status names the range; the plot's legend says
+    so. Broken once: the point at the largest change (8 %, not 3 %)."""
+    (tmp_path / "reference.json").write_text(json.dumps({"cases": ["a", "b"], "travel_m": [1.01e-3, 1.0e-3],
+                                                         "wall_s": [10.0, 40.0], "travel_ref_m": 1.0e-3,
+                                                         "error_bound_rel": 0.01}))
+    (tmp_path / "beyond_the_ladder.json").write_text(json.dumps({"runs": [
+        {"refines": "layers", "dofs": 9, "dt_max_s": 0.01, "travel_m": 0.97e-3, "resolved_same_step_m": 1.0e-3},
+        {"refines": "underside", "dofs": 9, "dt_max_s": 0.01, "travel_m": 1.15e-3, "resolved_same_step_m": 1.25e-3}]}))
+    points = sections_error_time.reference_points(tmp_path / "reference.json")
+    assert [(p["label"], p["metric"]) for p in points] == [("a", "travel error"), ("b", "travel error bound"),
+                                                           ("b", plots.GAP)]
+    assert np.allclose([p["error_pct"] for p in points], [1.0, 1.0, 3.0])
+    assert "-3.0 % to -8.0 %" in points[2]["status"] and "at least" in points[2]["status"]
+    fig = plots.draw_error_time(points, [])
+    labels = [t.get_text() for ax in fig.axes for leg in [ax.get_legend()] if leg for t in leg.get_texts()]
+    assert any("refined beyond" in label for label in labels), labels
 
 
 def test_a_diverged_model_gets_no_finite_point(tmp_path):

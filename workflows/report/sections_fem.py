@@ -13,6 +13,7 @@ from deapull import dataset, scene as scenes
 from deapull.paper import (ABAQUS_COIN_ELEMENTS, ABAQUS_ELEMENTS_PER_MEMBRANE, ABAQUS_POINTS, ABAQUS_S,
                            CONTACT_LOST_V, DATASET_POINTS, POISSON_RATIO, THRESHOLD_M, YOUNGS_MODULUS_PA)
 from deapull.io import atomic_write
+from deapull.workflows.fem_study import ladder_gap, with_beyond_the_ladder
 from deapull.workflows.report import pictures, pictures_contact
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.inputs import SCENE, SETUPS, fields_run
@@ -340,18 +341,34 @@ def section_fem_accuracy(rep: Report) -> Section:
         rep.claims.append(Claim("FEM time, 8 setups", f"8 × {ABAQUS_S:g} s (ABAQUS)", fmt(sw["wall_s"], ".0f", "s"),
                                 "#fem-accuracy"))
     bound = ref.get("error_bound_rel")
+    gap = ladder_gap(with_beyond_the_ladder(ref))
     if bound is None:
         sec.p("The reference's own error is not known (it is not a converged estimate), so the errors above "
               "are distances to a finer mesh, not to the continuum answer (docs/fem_accuracy.md).")
-    else:
+    elif gap is None:
         sec.p(f"The reference's own error bound: ± {fmt(100 * bound, '.2f', '%')} of its travel "
               "(docs/fem_accuracy.md).")
+    else:
+        sec.p(f"The reference's own error bound: ± {fmt(100 * bound, '.2f', '%')} of its travel, over the "
+              f"directions its ladder refines (the tip zone, the rim band, the penalty) only. {beyond_sentence(gap)} "
+              "So the errors above are distances to a mesh that is not converged, and no bound ≤ 1 % "
+              "(issue 23's goal) can be stated on the reference (docs/fem_accuracy.md).")
     # the datasets' fidelity: "resolved" since the fidelities (an older bench: the scene file, "shipped default")
     datasets = res.get("resolved (datasets)") or res.get("shipped default") or {}
     fast = res.get("fast (scene file)") or {}
     penalty_table(rep, sec, ref, datasets.get("travel_err"), fast.get("travel_err"),
                   "resolved" if "resolved (datasets)" in res else "")
     return sec
+
+
+def beyond_sentence(gap: dict) -> str:
+    """What the runs refined beyond the reference's ladder measured (:func:`fem_study.ladder_gap`)."""
+    finest = gap["finest_bound_rel"]
+    return (f"Meshes refined in the directions it leaves as shipped (the DEA's layers, the underside) travel "
+            f"{fmt(100 * gap['least_rel'], '+.1f', '%')} to {fmt(100 * gap['most_rel'], '+.1f', '%')} against "
+            f"`resolved` at the same time step ({gap['most_refines']}: the most)"
+            + (f", and have no observed order among themselves (their ladder's bound {fmt(100 * finest, '.1f', '%')})"
+               if finest is not None else "") + ".")
 
 
 def penalty_factor(case: str) -> int:
@@ -391,16 +408,25 @@ def penalty_table(rep: Report, sec: Section, ref: dict | None = None, shipped_er
         if fidelity and fast_err is not None:
             made += (f"; the fast preview (the scene file as written, `make demo`) lies "
                      f"{fmt(100 * fast_err, '+.2f', '%')}, with one contact point at the shipped penalty")
+        gap = ladder_gap(with_beyond_the_ladder(ref))
         sec.p(f"The reference is near rigid: its bound ± {fmt(100 * ref['error_bound_rel'], '.2f', '%')} is the mesh's "
               f"{fmt(100 * ref['mesh_bound_m'] / travel, '.2f', '%')} ({ref['mesh_bound_is']}) and the penalty's "
-              f"{fmt(100 * ref['penalty_bound_m'] / travel, '.2f', '%')}. {made} (docs/fem_accuracy.md).")
+              f"{fmt(100 * ref['penalty_bound_m'] / travel, '.2f', '%')}. {made} (docs/fem_accuracy.md)."
+              + (f" That bound covers the tip zone and the penalty only. {beyond_sentence(gap)}" if gap else ""))
+        if gap is not None:
+            verdict = (f"{'within' if abs(err) <= 2.0 else 'outside'} the issue's ≤ 2 % of this reference, but the "
+                       f"reference is not converged: refined in the layers and the underside the travel moves "
+                       f"{fmt(100 * gap['least_rel'], '+.1f', '%')} to {fmt(100 * gap['most_rel'], '+.1f', '%')}, "
+                       "so no bound ≤ 1 % is stated (issue 23: not met)")
+        elif abs(err) <= 2.0:
+            verdict = "within the issue's ≤ 2 %"
+        else:
+            verdict = "outside the issue's ≤ 2 %: the datasets' travel sits this much below the stiff-contact value"
         rep.claims.append(Claim("Contact convergence of the FEM (not in the paper)", "not reported",
                                 f"near-rigid reference {fmt(1e3 * travel, '.4f', 'mm')} ± "
-                                f"{fmt(100 * ref['error_bound_rel'], '.2f', '%')}; the datasets "
+                                f"{fmt(100 * ref['error_bound_rel'], '.2f', '%')} (tip zone and penalty only); the datasets "
                                 f"({fidelity or 'the shipped default'}) {fmt(err, '+.2f', '%')} from it", "#fem-accuracy",
-                                verdict="within the issue's ≤ 2 %" if abs(err) <= 2.0 else
-                                "outside the issue's ≤ 2 %: the datasets' travel sits this much below the "
-                                "stiff-contact value"))
+                                verdict=verdict))
         return
     patches = [r for r in rows if r["case"].startswith("patch-")]
     if patches:
