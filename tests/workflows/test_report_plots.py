@@ -237,6 +237,16 @@ def test_a_near_rigid_reference_gives_its_bound_parts_and_the_shipped_error(tmp_
     assert "fidelity `resolved`" in text and "-0.87 %" in text and "fast preview" in text and "-2.82 %" in text, text
     claim = rep2.claims[-1]
     assert "(resolved) -0.87 %" in claim.ours.replace("−", "-") and "within" in claim.verdict
+    # the runs beyond the reference's ladder (the committed ones) qualify the verdict: not converged
+    assert "not converged" in claim.verdict and "issue 23: not met" in claim.verdict, claim.verdict
+    # without the penalty study's CSV the near-rigid reference still gives its sentence and its claim
+    # (broken once: the early return of a missing CSV dropped them)
+    rep3 = Report(tmp_path / "report3", Inputs.under(tmp_path, fem_study=tmp_path / "nowhere"), progress=False)
+    sec3 = Section("fem-accuracy", "t")
+    sections_fem.penalty_table(rep3, sec3, ref, -0.0030, -0.0282, "resolved")
+    text = " ".join(b[1] for b in sec3.blocks if b[0] == "p").replace("−", "-")
+    assert "carries the penalty's share" in text and "The reference is near rigid" in text, text
+    assert rep3.claims and "-0.30 %" in rep3.claims[-1].ours.replace("−", "-")
 
 
 def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path):
