@@ -102,7 +102,8 @@ STEPS = (
          "--out {protocols} --ramp-results {experiments}", "the surrogates on held-out protocols and coins",
          "protocols"),
     Step("control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 "
-         "--noise 0,1e-5,1e-4,1e-3 --out {control}", "the closed-loop episodes (Fig. 6)", "control"),
+         "--noise 0,1e-5,1e-4,1e-3 --mpc-approach-mm 0.1 --mpc-no-reach-gate --out {control}",
+         "the closed-loop episodes (Fig. 6)", "control"),
     Step("control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --fidelity resolved --episodes 1 "
          "--noise 1e-4 --phi-prior coins --mpc-model out/models/fa_mem --mpc-no-infer --mpc-standoff 2 "
          "--mpc-innovation-window 25 --mpc-max-rate 0.4 --max-steps 4000 --unreachable report --out "
