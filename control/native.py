@@ -62,7 +62,7 @@ def library() -> ctypes.CDLL | None:
     if lib is None:
         return None
     _declare(lib, "deapull_coin")
-    lib.deapull_coin_predict.argtypes = [ctypes.c_int] + [_D] * 11
+    lib.deapull_coin_predict.argtypes = [ctypes.c_int] + [_D] * 12
     lib.deapull_coin_predict.restype = ctypes.c_int
     return lib
 
@@ -224,18 +224,23 @@ class NativeCoinDynamics(_NativeDynamics):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
         if not self.model.can("compiled_mpc") or library() is None:
             raise RuntimeError("the native coin MPC runs f-coulomb models where a C compiler is available")
+        from deapull.surrogate.models.tip_contact import SPREAD_SHIFT
         rest = self._load_pieces()
         p = self._pieces
-        self._static = [p["mean"], p["scale"], p["stroke_scale"], p["fy_mean"], p["fy_scale"], rest]
+        if self._slope.shape[1] != self.model.material_outputs:
+            raise RuntimeError(f"{self.model.kind}'s material network has {self.model.material_outputs} outputs, "
+                               f"its pieces {self._slope.shape[1]}")
+        self._static = [p["mean"], p["scale"], p["stroke_scale"], p["fy_mean"], p["fy_scale"], rest,
+                        self._slope.shape[1], SPREAD_SHIFT]
         self._lib = library()
 
     def _params(self) -> np.ndarray:
         m = self.model
         phi = self.phi
-        mean, scale, sx, fym, fys, rest = self._static
+        mean, scale, sx, fym, fys, rest, outputs, shift = self._static
         return np.array([mean, scale, sx, fym, fys, phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"),
                          m.gravity_m_s2, m.slip_rate_reg_m_s, self.dt, self.dv_max_V, self.v_max_V, m.iterations,
-                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, rest], dtype=np.float64)
+                         X_UNIT_M, U_UNIT_M_S, V_UNIT_V, rest, outputs, shift], dtype=np.float64)
 
 
 class NativeMemoryDynamics(_NativeDynamics):
@@ -266,13 +271,13 @@ class NativeMemoryDynamics(_NativeDynamics):
 
 
 def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
-    """The online inference's prediction for an f-coulomb ``model`` in C
+    """The online inference's prediction for an f-coulomb or f-patch ``model`` in C
     (:class:`~deapull.control.inference.Predictor`'s ``predict`` and ``stick_shortfall``).
 
     Parameters
     ----------
     columns : dict
-        The cached rows (``s``, ``a``, ``stroke_prev``, ``stroke``, ``fy``).
+        The cached rows (``s``, ``a``, ``stroke_prev``, ``stroke``, ``fy``; f-patch's ``spread``).
     phi : dict
         ``mass_kg``, ``mu_b``, ``mu_t`` (floats: one coin for every row).
     derivatives : bool
@@ -286,6 +291,11 @@ def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
     s, a = columns["s"], columns["a"]
     rows = [_np(s[:, 0]), _np(s[:, 1]), _np(a[:, 1]), _np(columns["stroke_prev"]), _np(columns["stroke"]),
             _np(columns["fy"])]
+    if "spread" in columns:
+        w = (columns["stroke"] - columns["stroke_prev"]) / a[:, 1]
+        rows.append(_np(model.slip_eps(w, columns["spread"])))
+    else:
+        rows.append(np.full(len(rows[0]), float(model.slip_rate_reg_m_s)))
     return _predict(lib.deapull_coin_predict, rows, _phys(model, phi), derivatives)
 
 

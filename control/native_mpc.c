@@ -1,7 +1,7 @@
 /* The coin task's MPC in C (deapull.control.native): f_a's step with its analytic Jacobians
  * and the batched box-iLQR of deapull.control.mpc.solve for n = 3, m = 1.
  *
- * The step is CoinDynamics (control/task.py) on the tip-contact model f-coulomb
+ * The step is CoinDynamics (control/task.py) on the tip-contact model f-coulomb, or f-patch
  * (surrogate/models/tip_contact.py): the material network m evaluated as the exact
  * piecewise-affine function it is (TipContactModel.material_pieces), the coin's
  * backward-Euler step solved by the same bracketed Newton iteration as tip_coin_step (with
@@ -13,10 +13,14 @@
  * Layout of the parameter block `p` (doubles), filled by control/native.py:
  *   0 mean, 1 scale of t = (V − mean)/scale, 2 stroke_scale, 3 fy_mean, 4 fy_scale,
  *   5 m_c, 6 μ_b, 7 μ_t, 8 g, 9 ε_v, 10 Δt, 11 ΔV_max, 12 V_max, 13 iterations,
- *   14 x unit, 15 u unit, 16 V unit, 17 raw output o_0 at 0 V
- * and the pieces: knots (K+1), slope (K, 2), intercept (K, 2).
+ *   14 x unit, 15 u unit, 16 V unit, 17 raw output o_0 at 0 V, 18 outputs of m (2: f-coulomb,
+ *   3: f-patch, whose third is the patch's spread β = softplus(o_2 − shift)), 19 that shift
+ * and the pieces: knots (K+1), slope (K, outputs), intercept (K, outputs).
+ * f-patch widens the tip friction's regularisation over a step to ε = √(ε_v² + (β(V') w)²);
+ * the Jacobians carry ε's dependence on w and V' (TipPatchModel).
  */
 #include <math.h>
+#include <stddef.h>
 
 #include "coin_step.h"   /* reg, coin_root: the coin's step (surrogate/coin_step.h) */
 
@@ -25,8 +29,8 @@
 typedef struct {
     int K;
     const double *knots, *slope, *intercept;
-    double mean, scale, sx, fym, fys, mass, mu_b, mu_t, grav, eps, dt, dvmax, vmax, xu, uu, vu, rest;
-    int iterations;
+    double mean, scale, sx, fym, fys, mass, mu_b, mu_t, grav, eps, dt, dvmax, vmax, xu, uu, vu, rest, shift;
+    int iterations, outputs;
 } Model;
 
 static Model model_of(const double *p, int K, const double *knots, const double *slope, const double *intercept)
@@ -37,11 +41,14 @@ static Model model_of(const double *p, int K, const double *knots, const double 
     M.mass = p[5]; M.mu_b = p[6]; M.mu_t = p[7]; M.grav = p[8]; M.eps = p[9];
     M.dt = p[10]; M.dvmax = p[11]; M.vmax = p[12]; M.iterations = (int)p[13];
     M.xu = p[14]; M.uu = p[15]; M.vu = p[16]; M.rest = p[17];
+    M.outputs = (int)p[18]; M.shift = p[19];
     return M;
 }
 
-/* X(V), dX/dV, Fy(V), dFy/dV */
-static void material(const Model *M, double V, double *X, double *dX, double *Fy, double *dFy)
+/* X(V), dX/dV, Fy(V), dFy/dV and, where beta is not NULL, the spread β(V), dβ/dV (0 for a
+ * two-output m) */
+static void material(const Model *M, double V, double *X, double *dX, double *Fy, double *dFy, double *beta,
+                     double *dbeta)
 {
     double t = (V - M->mean) / M->scale;
     int lo = 0, hi = M->K - 1;
@@ -49,30 +56,39 @@ static void material(const Model *M, double V, double *X, double *dX, double *Fy
         int mid = (lo + hi + 1) >> 1;
         if (M->knots[mid] <= t) lo = mid; else hi = mid - 1;
     }
-    double s0 = M->slope[2 * lo], s1 = M->slope[2 * lo + 1];
-    double o0 = s0 * t + M->intercept[2 * lo], o1 = s1 * t + M->intercept[2 * lo + 1];
+    const int k = M->outputs * lo;
+    double s0 = M->slope[k], s1 = M->slope[k + 1];
+    double o0 = s0 * t + M->intercept[k], o1 = s1 * t + M->intercept[k + 1];
     *X = M->sx * (o0 - M->rest);
     *dX = M->sx * s0 / M->scale;
     *Fy = M->fym + M->fys * o1;
     *dFy = M->fys * s1 / M->scale;
+    if (!beta) return;
+    *beta = *dbeta = 0.0;
+    if (M->outputs < 3) return;
+    /* softplus(o) = max(o, 0) + log1p(exp(−|o|)), as torch's; its slope the logistic */
+    double o2 = M->slope[k + 2] * t + M->intercept[k + 2] - M->shift;
+    *beta = fmax(o2, 0.0) + log1p(exp(-fabs(o2)));
+    *dbeta = M->slope[k + 2] / M->scale / (1.0 + exp(-o2));
 }
 
 /* One step ξ' = f(ξ, ν) in scaled units; A (3×3, row-major) = ∂ξ'/∂ξ and Bv (3) = ∂ξ'/∂ν
  * when A is not NULL. */
 static void step(const Model *M, const double *xi, double nu, double *out, double *A, double *Bv)
 {
-    const double dt = M->dt, eps = M->eps;
+    const double dt = M->dt;
     double x = xi[0] * M->xu, u = xi[1] * M->uu, V = xi[2] * M->vu;
     double Vr = V + nu * M->dvmax;
     double Vn = fmin(fmax(Vr, 0.0), M->vmax);
     double mask = (Vr >= 0.0 && Vr <= M->vmax) ? 1.0 : 0.0;
-    double Xp, dXp, Fp, dFp, Xn, dXn, Fy, dFy;
-    material(M, V, &Xp, &dXp, &Fp, &dFp);
-    material(M, Vn, &Xn, &dXn, &Fy, &dFy);
+    double Xp, dXp, Fp, dFp, Xn, dXn, Fy, dFy, beta, dbeta;
+    material(M, V, &Xp, &dXp, &Fp, &dFp, NULL, NULL);
+    material(M, Vn, &Xn, &dXn, &Fy, &dFy, &beta, &dbeta);
     double normal_raw = M->mass * M->grav + Fy;
     double normal = normal_raw > 0.0 ? normal_raw : 0.0, dnormal = normal_raw >= 0.0 ? dFy : 0.0;
     double fyc = Fy > 0.0 ? Fy : 0.0, dfyc = Fy >= 0.0 ? dFy : 0.0;
     double w = (Xn - Xp) / dt;
+    double bw = beta * w, eps = sqrt(M->eps * M->eps + bw * bw);   /* TipContactModel.slip_eps */
     double cap_t = M->mu_t * fyc, cap_b = M->mu_b * normal;
     /* tip_coin_step */
     double c = M->mass / dt;
@@ -91,9 +107,14 @@ static void step(const Model *M, const double *xi, double nu, double *out, doubl
     if (!stuck) {
         double du_dw = cap_t * g / sl, du_dct = regy / sl, du_dcb = -sign / sl;
         double dcap = du_dct * M->mu_t * dfyc + du_dcb * M->mu_b * dnormal;   /* d u'/d V' through the caps */
+        /* f-patch: ε = √(ε_v² + β² w²) moves with w and with β(V'); ∂r/∂ε = cap_t y ε / q^1.5 */
+        double du_deps = -cap_t * y * eps / (q * sqrt(q)) / sl;
+        double deps_dw = beta * bw / eps, deps_dbeta = bw * w / eps;
+        du_dw += du_deps * deps_dw;
+        double dspread = du_deps * deps_dbeta * dbeta;   /* d u'/d V' through β */
         du_du = c / sl;
-        du_dV = du_dw * (dXn * mask - dXp) / dt + dcap * mask;
-        du_dnu = (du_dw * dXn / dt + dcap) * mask * M->dvmax;
+        du_dV = du_dw * (dXn * mask - dXp) / dt + (dcap + dspread) * mask;
+        du_dnu = (du_dw * dXn / dt + dcap + dspread) * mask * M->dvmax;
     }
     A[0] = 1.0; A[1] = dt * du_du * M->uu / M->xu; A[2] = dt * du_dV * M->vu / M->xu;
     A[3] = 0.0; A[4] = du_du;                      A[5] = du_dV * M->vu / M->uu;
@@ -114,15 +135,16 @@ static void step(const Model *M, const double *xi, double nu, double *out, doubl
  * predicted next position x̂ (Predictor.predict), the stick shortfall (cap_b − |R|)⁺ Δt/m_c
  * (Predictor.stick_shortfall), and when dpred is not NULL their derivatives with respect
  * to log m_c, log μ_b, log μ_t (n, 3), from the implicit-function theorem at the root as
- * autograd through the torch model gives them. */
+ * autograd through the torch model gives them. eps_rows (n) is each row's regularisation
+ * (f-patch's √(ε_v² + (β w)²), which φ does not move); NULL: ε_v = phys[4] for every row. */
 int deapull_coin_predict(int n, const double *x, const double *u, const double *dts, const double *stroke_prev,
-                         const double *stroke, const double *fy_in, const double *phys,
+                         const double *stroke, const double *fy_in, const double *eps_rows, const double *phys,
                          double *pred, double *dpred, double *shortfall, double *dshort)
 {
-    const double mass = phys[0], mu_b = phys[1], mu_t = phys[2], grav = phys[3], eps = phys[4];
+    const double mass = phys[0], mu_b = phys[1], mu_t = phys[2], grav = phys[3];
     const int iterations = (int)phys[5];
     for (int i = 0; i < n; i++) {
-        double dt = dts[i], Fy = fy_in[i], ui = u[i];
+        double dt = dts[i], Fy = fy_in[i], ui = u[i], eps = eps_rows ? eps_rows[i] : phys[4];
         double normal_raw = mass * grav + Fy;
         double normal = normal_raw > 0.0 ? normal_raw : 0.0, dnormal_dm = normal_raw >= 0.0 ? grav : 0.0;
         double fyc = Fy > 0.0 ? Fy : 0.0;

@@ -104,8 +104,7 @@ def cmd_evaluate(args) -> int:
 def cmd_experiments(args) -> int:
     from deapull.surrogate import experiments  # lazy: torch
     from deapull.surrogate.data import parse_setups  # lazy: torch
-    from deapull.surrogate.models import KINDS  # lazy: torch
-    kinds = parse_setups(args.models) if args.models else list(KINDS)
+    kinds = parse_setups(args.models) if args.models else list(experiments.SET_KINDS)
     try:
         sets = [int(s) for s in args.sets.split(",") if s.strip()]
     except ValueError:
@@ -180,7 +179,7 @@ def register(sub) -> None:
     """Add ``train``, ``evaluate`` and ``experiments`` to the ``deapull`` sub-parsers."""
     from deapull.surrogate.models import KINDS  # lazy: torch
 
-    p = sub.add_parser("train", help="train a surrogate (f, f-coulomb, nn, lstm) on FEM datasets")
+    p = sub.add_parser("train", help=f"train a surrogate ({', '.join(KINDS)}) on FEM datasets")
     p.add_argument("--data", required=True, help="folder with <setup>.nc datasets")
     p.add_argument("--train", required=True, help="training setup(s), e.g. C1 or C1,C2")
     p.add_argument("--val", required=True, help="validation setup for early stopping, e.g. C2")
@@ -201,7 +200,9 @@ def register(sub) -> None:
     p = sub.add_parser("experiments", help="the paper's six sets {C_i, C_i+1, C_i+2} for every model")
     p.add_argument("--data", required=True, help="folder with C1.nc .. C8.nc")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--models", default="", help=f"comma-separated kinds (default all: {','.join(KINDS)})")
+    p.add_argument("--models", default="", help="comma-separated kinds (default: every kind that one training coin "
+                   f"identifies, {','.join(k for k, c in KINDS.items() if c.training_coins == 1)}; "
+                   f"also {','.join(k for k, c in KINDS.items() if c.training_coins > 1) or 'none'})")
     p.add_argument("--sets", default="1,2,3,4,5,6", help="which sets to run (default 1,2,3,4,5,6)")
     _training_args(p, 1000)
     p.set_defaults(func=cmd_experiments)

@@ -153,6 +153,9 @@ class Surrogate(nn.Module):
     physics = False
     #: the fields of φ the dynamics uses (:class:`~deapull.surrogate.phi.Phi`)
     phi_fields: tuple = ()
+    #: coins of different friction margins a training run needs to identify the model; a kind
+    #: that needs more than one sits out the paper's sets (one training coin each)
+    training_coins = 1
     window = 1
     #: what the control stage may ask of this kind (:data:`CAPABILITIES`); control/ asks
     #: :meth:`can`, never a kind's name

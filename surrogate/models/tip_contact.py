@@ -7,6 +7,8 @@ with φ = (m_c, μ_b, μ_t). No V^T is needed.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import torch
 
@@ -17,13 +19,16 @@ from deapull.surrogate.models.base import (InputRange, NativeKernel, Normalisati
 from deapull.surrogate.models.registry import register
 from deapull.surrogate.phi import Phi
 
+log = logging.getLogger(__name__)
 
-def regularised_slip(v: torch.Tensor, eps: float) -> torch.Tensor:
-    """The FEM's rate-regularised Coulomb factor s/√(s² + ε²) ∈ (-1, 1) of a slip rate s."""
+
+def regularised_slip(v: torch.Tensor, eps) -> torch.Tensor:
+    """The FEM's rate-regularised Coulomb factor s/√(s² + ε²) ∈ (-1, 1) of a slip rate s
+    (ε a float, or a tensor of one per row)."""
     return v / torch.sqrt(v * v + eps * eps)
 
 
-def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps: float, iterations: int = 40):
+def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps, iterations: int = 40):
     """d of the tip-contact model: one backward-Euler step of the coin between two contacts.
 
     The coin (mass m_c, velocity u) is dragged by the DEA tip moving at w with the FEM's
@@ -45,8 +50,9 @@ def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps: float, iterations: int =
     cap_t, cap_b : torch.Tensor
         μ_t Fy and μ_b N (N), non-negative.
     mass_kg, dt : torch.Tensor or float
-    eps : float
-        Slip-rate regularisation ε (m/s), > 0.
+    eps : float or torch.Tensor
+        Slip-rate regularisation ε (m/s), > 0; a tensor gives one per row (f-patch's spread),
+        and the gradients then reach it too.
     iterations : int
         Most Newton/bisection iterations (they stop once no row changes; a handful suffice).
 
@@ -224,23 +230,44 @@ class TipContactModel(TipFriction, Surrogate):
     label = "f (tip contact)"
     physics = True
 
+    #: outputs of m: the stroke and Fy (f-patch adds the patch's spread)
+    material_outputs = 2
+
     def __init__(self, norm: Normalisation, input_range: InputRange, hidden: int = 128, layers: int = 3,
                  gravity_m_s2: float = 9.8, slip_rate_reg_m_s: float = 1e-4, iterations: int = 40):
-        self._init_tip(norm, input_range, 2, hidden, layers, gravity_m_s2, slip_rate_reg_m_s, iterations)
+        self._init_tip(norm, input_range, self.material_outputs, hidden, layers, gravity_m_s2, slip_rate_reg_m_s,
+                       iterations)
 
-    def material_response(self, V: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """m: the tip's stroke X(V) (m, X(0) = 0) and pressing force Fy(V) (N)."""
+    def material_all(self, V: torch.Tensor):
+        """m's outputs: the tip's stroke X(V) (m, X(0) = 0), pressing force Fy(V) (N) and the
+        patch's slip spread β(V) (f-patch; None here)."""
         scaled = torch.stack([V, torch.zeros_like(V)], dim=-1).unsqueeze(-1)
         out = self.material((scaled - self.in_mean[2]) / self.in_std[2])
         stroke = self.s_std[0] * (out[..., 0, 0] - out[..., 1, 0])
-        return stroke, self.z_mean[1] + self.z_std[1] * out[..., 0, 1]
+        return stroke, self.z_mean[1] + self.z_std[1] * out[..., 0, 1], self.spread_of(out[..., 0, :])
+
+    def material_response(self, V: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """m: the tip's stroke X(V) (m, X(0) = 0) and pressing force Fy(V) (N)."""
+        return self.material_all(V)[:2]
+
+    def spread_of(self, raw):
+        """The patch's slip spread β from m's raw outputs (f-patch); None: a point contact."""
+        return None
+
+    def slip_eps(self, w, spread):
+        """The tip friction's regularisation over a step: ε_v, widened to √(ε_v² + (β w)²) by
+        the patch's spread β (f-patch)."""
+        if spread is None:
+            return self.slip_rate_reg_m_s
+        return torch.sqrt(self.slip_rate_reg_m_s ** 2 + (spread.double() * w) ** 2)
 
     def init_memory(self, s0, a0):
         """(V, X) before the first step: the DEA at rest, 0 V."""
         return torch.zeros(s0.shape[:-1] + (2,), dtype=s0.dtype, device=s0.device)
 
-    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi):
-        """d: the next state and z = (Fx, Fy), in float64, from the tip's stroke over the step."""
+    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi, spread=None):
+        """d: the next state and z = (Fx, Fy), in float64, from the tip's stroke over the step
+        (and f-patch's spread β at the step's end)."""
         s, a = s.double(), a.double()
         phi = self._phi(phi, s, torch.float64)
         dt = a[..., 1]
@@ -248,14 +275,15 @@ class TipContactModel(TipFriction, Surrogate):
         normal = torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
         w = (stroke.double() - stroke_prev.double()) / dt
         u_next, fx = tip_coin_step(s[..., 1], w, phi.mu_t * torch.clamp(fy, min=0.0), phi.mu_b * normal,
-                                   phi.mass_kg, dt, self.slip_rate_reg_m_s, self.iterations)
+                                   phi.mass_kg, dt, self.slip_eps(w, spread), self.iterations)
         return torch.stack([s[..., 0] + dt * u_next, u_next], dim=-1), torch.stack([fx, fy], dim=-1)
 
     def forward(self, s, a, v_prev, phi: Phi):
         """f(s, a; θ, φ) → (s', z) from the voltage ``v_prev`` before the step; ``phi`` is one
         coin or one per row."""
-        stroke, fy = self.material_response(torch.stack([v_prev, a[..., 0]], dim=-1))
-        s_next, z = self.dynamics(s, a, stroke[..., 0], stroke[..., 1], fy[..., 1], phi)
+        stroke, fy, spread = self.material_all(torch.stack([v_prev, a[..., 0]], dim=-1))
+        s_next, z = self.dynamics(s, a, stroke[..., 0], stroke[..., 1], fy[..., 1], phi,
+                                  None if spread is None else spread[..., 1])
         return s_next.to(s.dtype), z.to(s.dtype)
 
     capabilities = frozenset({"plan", "infer", "compiled_mpc"})
@@ -266,12 +294,14 @@ class TipContactModel(TipFriction, Surrogate):
     def inference_columns(self, x_prev, x, V, V_next, dt) -> dict:
         s, a = torch.stack([x, (x - x_prev) / dt], -1), torch.stack([V_next, dt], -1)
         with torch.no_grad():
-            stroke, fy = self.material_response(torch.stack([V, V_next], -1))
+            stroke, fy, spread = self.material_all(torch.stack([V, V_next], -1))
         columns = {"s": s, "a": a, "stroke_prev": stroke[..., 0], "stroke": stroke[..., 1], "fy": fy[..., 1]}
+        if spread is not None:
+            columns["spread"] = spread[..., 1]
         return {k: v.double() for k, v in columns.items()}
 
     def predict_columns(self, c: dict, phi: Phi):
-        return self.dynamics(c["s"], c["a"], c["stroke_prev"], c["stroke"], c["fy"], phi)[0][..., 0]
+        return self.dynamics(c["s"], c["a"], c["stroke_prev"], c["stroke"], c["fy"], phi, c.get("spread"))[0][..., 0]
 
     def stick_shortfall(self, c: dict, phi: Phi):
         """(cap_b − |R|)⁺ Δt/m_c, with R the ground's reaction needed to hold the coin and cap_b =
@@ -281,14 +311,14 @@ class TipContactModel(TipFriction, Surrogate):
         w = (c["stroke"] - c["stroke_prev"]) / dt
         cap_t = phi.mu_t * torch.clamp(fy, min=0.0)
         cap_b = phi.mu_b * torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
-        reaction = cap_t * regularised_slip(w, self.slip_rate_reg_m_s) + phi.mass_kg / dt * c["s"][..., 1]
+        reaction = cap_t * regularised_slip(w, self.slip_eps(w, c.get("spread"))) + phi.mass_kg / dt * c["s"][..., 1]
         return torch.relu(cap_b - reaction.abs()) * dt / phi.mass_kg
 
     def step(self, s, a, memory=None, phi: Phi | None = None):
         if memory is None:
             memory = self.init_memory(s, a)
-        stroke, fy = self.material_response(a[..., 0])
-        s_next, z = self.dynamics(s, a, memory[..., 1], stroke, fy, phi)
+        stroke, fy, spread = self.material_all(a[..., 0])
+        s_next, z = self.dynamics(s, a, memory[..., 1], stroke, fy, phi, spread)
         return s_next.to(s.dtype), z.to(s.dtype), torch.stack([a[..., 0], stroke.to(s.dtype)], dim=-1)
 
     def training_loss(self, batch: Transitions) -> torch.Tensor:
@@ -304,3 +334,48 @@ class TipContactModel(TipFriction, Surrogate):
         phys = np.array([phi.value("mass_kg"), phi.value("mu_b"), phi.value("mu_t"), self.gravity_m_s2,
                          self.slip_rate_reg_m_s, self.iterations], dtype=np.float64)
         return NativeKernel("deapull_rollout_tip", (n_layers, sizes, params, norm, phys), forces=True)
+
+
+#: f-patch's spread β = softplus(o₂ − SPREAD_SHIFT): β ≈ 0.13 for a fresh network's o₂ ≈ 0
+SPREAD_SHIFT = 2.0
+
+
+@register
+class TipPatchModel(TipContactModel):
+    """f-coulomb with a tip patch whose points slide at different speeds (kind ``f-patch``).
+
+    On the resolved contact the coin does not follow the tip at one speed: the patch's points
+    move at different speeds (the underside stretches and the patch rolls toward the tip's
+    edge), and the coin takes the speed at which their frictions balance the ground's. So the
+    coin's share of the tip's speed falls with the friction margin r = μ_b N/(μ_t Fy) and,
+    more and more, with the voltage (docs/surrogate.md: at 370 V C3 moves at 0.71 of the tip's
+    speed, C5 at 0.42). One more output of m, the patch's spread β(V) ≥ 0, widens the tip
+    friction's regularisation over a step to ε = √(ε_v² + (β w)²): the tip's pull on a coin
+    moving at u is μ_t Fy s/√(s² + ε²), s = w − u, so a coin dragged at a steady margin r lags
+    the tip by ε r/√(1 − r²) ≈ β w r/√(1 − r²), a share that grows with r as the FEM's does.
+    β = 0 is f-coulomb. The spread is a property of the DEA (of V alone); only runs with
+    different margins at the same V identify it, so train on several coins (f_a: C3..C7). On a
+    single training coin β and the stroke X trade off, and the model is f-coulomb's.
+
+    m: MLP 1 → ``layers``×``hidden`` ReLU → 3 (X, Fy, β = softplus(o₂ − SPREAD_SHIFT)). No C
+    rollout kernel: rollouts take the torch path; the MPC's compiled step
+    (``control/native_mpc.c``) and the inference's compiled prediction carry β.
+    """
+
+    kind = "f-patch"
+    label = "f (tip patch)"
+    material_outputs = 3
+    training_coins = 2
+    native_kernel = None
+
+    @classmethod
+    def training_hparams(cls, config, train_sets: list) -> dict:
+        margins = {(d.mu_t, d.mu_b) for d in train_sets}
+        if len(margins) < cls.training_coins:
+            log.warning("f-patch trained on coins of %d friction pair(s) %s: the patch's spread is not identified "
+                        "(it trades off with the stroke); train on coins of different μ_t/μ_b (f_a: C3..C7)",
+                        len(margins), sorted(margins))
+        return super().training_hparams(config, train_sets)
+
+    def spread_of(self, raw):
+        return torch.nn.functional.softplus(raw[..., 2] - SPREAD_SHIFT)

@@ -10,15 +10,15 @@ from deapull.control import mpc
 F64 = torch.float64
 
 
-def assert_plans_match_torch(slow, fast, cost, x0, iterations: int, T: int = 10):
+def assert_plans_match_torch(slow, fast, cost, x0, iterations: int, T: int = 10, improving: int = 3):
     """The compiled box-iLQR of ``fast`` against :func:`mpc.solve` on ``slow`` (the torch
     dynamics of the same model) from the rows ``x0`` (3 of them: two start from a full push, one
-    from none): every plan improves, the cost histories agree to 1e-10, the plans and states to
-    1e-6. Returns (the start plan u0, torch solution, compiled solution)."""
+    from none): the first ``improving`` plans improve, the cost histories agree to 1e-10, the
+    plans and states to 1e-6. Returns (the start plan u0, torch solution, compiled solution)."""
     u0 = torch.cat([torch.ones(2, T, 1, dtype=F64), torch.zeros(1, T, 1, dtype=F64)])
     ref = mpc.solve(slow, cost, x0, u0, -1.0, 1.0, iterations=iterations)
     got = fast.solve(cost, x0, u0, -1.0, 1.0, iterations=iterations)
-    assert bool((ref.history[:, -1] < ref.history[:, 0]).all())     # every plan improved
+    assert bool((ref.history[:improving, -1] < ref.history[:improving, 0]).all())     # the plans improved
     torch.testing.assert_close(got.history, ref.history, rtol=1e-10, atol=1e-10)
     torch.testing.assert_close(got.u, ref.u, rtol=0, atol=1e-6)
     torch.testing.assert_close(got.x, ref.x, rtol=0, atol=1e-6)
