@@ -25,7 +25,7 @@ Jacobians, and the same iLQR for n = 5 (:class:`NativeMemoryDynamics`,
 each file's step) is written once, in ``ilqr_passes.h``, which both files include with their
 own state width.
 
-:class:`NativeCoinDynamics` is a drop-in :class:`~deapull.control.dynamics.CoinDynamics`
+:class:`NativeCoinDynamics` (f-coulomb, and f-patch with its spread) is a drop-in :class:`~deapull.control.dynamics.CoinDynamics`
 (``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
 returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
 Jacobians and plans to the torch path's (``tests/control/test_native.py``). Compiled on
@@ -223,7 +223,7 @@ class NativeCoinDynamics(_NativeDynamics):
     def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
         if not self.model.can("compiled_mpc") or library() is None:
-            raise RuntimeError("the native coin MPC runs f-coulomb models where a C compiler is available")
+            raise RuntimeError("the native coin MPC runs f-coulomb and f-patch models where a C compiler is available")
         from deapull.surrogate.models.tip_contact import SPREAD_SHIFT
         rest = self._load_pieces()
         p = self._pieces
