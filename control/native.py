@@ -25,8 +25,8 @@ Jacobians, and the same iLQR for n = 5 (:class:`NativeMemoryDynamics`,
 each file's step) is written once, in ``ilqr_passes.h``, which both files include with their
 own state width.
 
-:class:`NativeCoinDynamics` (f-coulomb, and f-patch with its spread) is a drop-in :class:`~deapull.control.dynamics.CoinDynamics`
-(``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
+:class:`NativeCoinDynamics` (f-coulomb, and f-patch with its spread) is a drop-in
+:class:`~deapull.control.dynamics.CoinDynamics` (``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
 returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
 Jacobians and plans to the torch path's (``tests/control/test_native.py``). Compiled on
 first use like the surrogate's native rollouts (same cache folder and flags, the cache keyed
