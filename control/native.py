@@ -26,8 +26,8 @@ each file's step) is written once, in ``ilqr_passes.h``, which both files includ
 own state width.
 
 :class:`NativeCoinDynamics` (f-coulomb, and f-patch with its spread) is a drop-in
-:class:`~deapull.control.dynamics.CoinDynamics` (``__call__``, ``jacobian`` for :func:`mpc.linearize`, ``state``) with a :meth:`solve`
-returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
+:class:`~deapull.control.dynamics.CoinDynamics` (``__call__``, ``jacobian`` for
+:func:`mpc.linearize`, ``state``) with a :meth:`solve` returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
 Jacobians and plans to the torch path's (``tests/control/test_native.py``). Compiled on
 first use like the surrogate's native rollouts (same cache folder and flags, the cache keyed
 on ``ilqr_passes.h`` too); without a compiler, or with ``DEAPULL_NATIVE=0``,
@@ -224,14 +224,13 @@ class NativeCoinDynamics(_NativeDynamics):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
         if not self.model.can("compiled_mpc") or library() is None:
             raise RuntimeError("the native coin MPC runs f-coulomb and f-patch models where a C compiler is available")
-        from deapull.surrogate.models.tip_contact import SPREAD_SHIFT
         rest = self._load_pieces()
         p = self._pieces
         if self._slope.shape[1] != self.model.material_outputs:
             raise RuntimeError(f"{self.model.kind}'s material network has {self.model.material_outputs} outputs, "
                                f"its pieces {self._slope.shape[1]}")
         self._static = [p["mean"], p["scale"], p["stroke_scale"], p["fy_mean"], p["fy_scale"], rest,
-                        self._slope.shape[1], SPREAD_SHIFT]
+                        self._slope.shape[1], self.model.spread_shift]
         self._lib = library()
 
     def _params(self) -> np.ndarray:
@@ -291,11 +290,10 @@ def coin_predict(model, columns: dict, phi: dict, derivatives: bool = True):
     s, a = columns["s"], columns["a"]
     rows = [_np(s[:, 0]), _np(s[:, 1]), _np(a[:, 1]), _np(columns["stroke_prev"]), _np(columns["stroke"]),
             _np(columns["fy"])]
-    if "spread" in columns:
-        w = (columns["stroke"] - columns["stroke_prev"]) / a[:, 1]
-        rows.append(_np(model.slip_eps(w, columns["spread"])))
-    else:
-        rows.append(np.full(len(rows[0]), float(model.slip_rate_reg_m_s)))
+    # ε per row for f-patch; None (NULL): ε_v for every row
+    spread = columns.get("spread")
+    rows.append(None if spread is None else
+                _np(model.slip_eps((columns["stroke"] - columns["stroke_prev"]) / a[:, 1], spread)))
     return _predict(lib.deapull_coin_predict, rows, _phys(model, phi), derivatives)
 
 
@@ -311,7 +309,8 @@ def _predict(fn, rows: list, phys: np.ndarray, derivatives: bool):
     pred, short = np.empty(n), np.empty(n)
     dpred = np.empty((n, 3)) if derivatives else None
     dshort = np.empty((n, 3)) if derivatives else None
-    fn(n, *(_p(r) for r in rows), _p(phys), _p(pred), _p(dpred) if derivatives else None, _p(short),
+    columns = (None if r is None else _p(r) for r in rows)     # None: NULL, the kernel's default
+    fn(n, *columns, _p(phys), _p(pred), _p(dpred) if derivatives else None, _p(short),
        _p(dshort) if derivatives else None)
     as_t = (lambda v: None if v is None else torch.from_numpy(v))
     return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)

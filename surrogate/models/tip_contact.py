@@ -230,8 +230,9 @@ class TipContactModel(TipFriction, Surrogate):
     label = "f (tip contact)"
     physics = True
 
-    #: outputs of m: the stroke and Fy (f-patch adds the patch's spread)
+    #: outputs of m: the stroke and Fy (f-patch adds the patch's spread, softplus(o₂ − spread_shift))
     material_outputs = 2
+    spread_shift = 0.0
 
     def __init__(self, norm: Normalisation, input_range: InputRange, hidden: int = 128, layers: int = 3,
                  gravity_m_s2: float = 9.8, slip_rate_reg_m_s: float = 1e-4, iterations: int = 40):
@@ -336,10 +337,6 @@ class TipContactModel(TipFriction, Surrogate):
         return NativeKernel("deapull_rollout_tip", (n_layers, sizes, params, norm, phys), forces=True)
 
 
-#: f-patch's spread β = softplus(o₂ − SPREAD_SHIFT): β ≈ 0.13 for a fresh network's o₂ ≈ 0
-SPREAD_SHIFT = 2.0
-
-
 @register
 class TipPatchModel(TipContactModel):
     """f-coulomb with a tip patch whose points slide at different speeds (kind ``f-patch``).
@@ -357,7 +354,7 @@ class TipPatchModel(TipContactModel):
     different margins at the same V identify it, so train on several coins (f_a: C3..C7). On a
     single training coin β and the stroke X trade off, and the model is f-coulomb's.
 
-    m: MLP 1 → ``layers``×``hidden`` ReLU → 3 (X, Fy, β = softplus(o₂ − SPREAD_SHIFT)). No C
+    m: MLP 1 → ``layers``×``hidden`` ReLU → 3 (X, Fy, β = softplus(o₂ − ``spread_shift``)). No C
     rollout kernel: rollouts take the torch path; the MPC's compiled step
     (``control/native_mpc.c``) and the inference's compiled prediction carry β.
     """
@@ -365,6 +362,8 @@ class TipPatchModel(TipContactModel):
     kind = "f-patch"
     label = "f (tip patch)"
     material_outputs = 3
+    #: β = softplus(o₂ − spread_shift): β ≈ 0.13 for a fresh network's o₂ ≈ 0
+    spread_shift = 2.0
     training_coins = 2
     native_kernel = None
 
@@ -378,4 +377,4 @@ class TipPatchModel(TipContactModel):
         return super().training_hparams(config, train_sets)
 
     def spread_of(self, raw):
-        return torch.nn.functional.softplus(raw[..., 2] - SPREAD_SHIFT)
+        return torch.nn.functional.softplus(raw[..., 2] - self.spread_shift)
