@@ -27,11 +27,12 @@ own state width.
 
 :class:`NativeCoinDynamics` (f-coulomb, and f-patch with its spread) is a drop-in
 :class:`~deapull.control.dynamics.CoinDynamics` (``__call__``, ``jacobian`` for
-:func:`mpc.linearize`, ``state``) with a :meth:`solve` returning the same :class:`~deapull.control.mpc.Solution`. Tests hold its steps,
-Jacobians and plans to the torch path's (``tests/control/test_native.py``). Compiled on
-first use like the surrogate's native rollouts (same cache folder and flags, the cache keyed
-on ``ilqr_passes.h`` too); without a compiler, or with ``DEAPULL_NATIVE=0``,
-:func:`available` is False and the torch path is used.
+:func:`mpc.linearize`, ``state``) with a :meth:`solve` returning the same
+:class:`~deapull.control.mpc.Solution`. Tests hold its steps, Jacobians and plans to the
+torch path's (``tests/control/test_native.py``). Compiled on first use like the surrogate's
+native rollouts (same cache folder and flags, the cache keyed on ``ilqr_passes.h`` too);
+without a compiler, or with ``DEAPULL_NATIVE=0``, :func:`available` is False and the torch
+path is used.
 """
 from __future__ import annotations
 
