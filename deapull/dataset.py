@@ -27,6 +27,11 @@ from deapull.io import atomic_write
 ENGINE = "h5netcdf"
 DIM = "step"
 
+#: the coin speeds, as shares of the patch's speed, at which the FEM probes the patch's friction
+PATCH_SHARES = (0.0, 0.5, 0.75, 0.9, 0.95, 1.0)
+#: their variables (patch_drag_050: the coin at 0.5 x patch_vx)
+PATCH_DRAGS = tuple(f"patch_drag_{round(100 * s):03d}" for s in PATCH_SHARES)
+
 #: every variable of a dataset: name -> (units, long_name)
 VARIABLES = {
     "t": ("s", "time"),
@@ -61,6 +66,14 @@ VARIABLES = {
     "table_Ry": ("N", "force of the table on the DEA along y, upward (0 without a [table]); never part of Fy"),
     "table_penetration_m": ("m", "largest penetration of the DEA's underside into the table at the table "
                                  "integral's quadrature points"),
+    "patch_vx": ("m/s", "x velocity of the DEA's points that touch the obstacle, weighted by the normal traction "
+                        "(0 when nothing touches): the patch's speed"),
+    "patch_normal_x": ("N", "x force of the normal traction alone on the obstacle (the rim's fillet pushes it "
+                            "back toward +x); part of Fx"),
+    **{name: ("N", f"x force the DEA-obstacle friction would put on the obstacle per unit mu_t, were the obstacle "
+                   f"moving at {share:g} x patch_vx (the patch's friction-speed curve: a DEA-side probe "
+                   f"of the solved step, the same integrand and points as Fx)")
+       for share, name in zip(PATCH_SHARES, PATCH_DRAGS)},
     "wall_time_s": ("s", "wall time of the step"),
 }
 #: the variables of the paper's Table I: every dataset has them

@@ -57,6 +57,21 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
     penalty_N_m3 : normal penalty stiffness k_n
     slip_rate_reg_m_s : friction regularisation ε_v (m/s)
     """
+    n, depth = _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius)
+    pn = penalty_N_m3 * depth
+    t_T = mu * _unit_friction(u, u_old, (X - X_old) / dt, dt, n, pn, slip_rate_reg_m_s)
+    traction = pn * n + t_T        # on the DEA, from the obstacle
+    return ObstacleTerms(
+        energy=0.5 * penalty_N_m3 * depth ** 2 * ds_contact,
+        friction_residual=-ufl.dot(t_T, v) * ds_contact,
+        Fx=-traction[0] * ds_contact,
+        Fy=traction[1] * ds_contact,
+        pressure=pn,
+    )
+
+
+def _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius):
+    """The obstacle's outward normal n and the penetration δ at the DEA's current points."""
     x = ufl.SpatialCoordinate(ds_contact.ufl_domain()) + u
     rx, rz = x[0] - center_x0 - X, x[2]
     rho = ufl.sqrt(rx ** 2 + rz ** 2 + (1e-9 * radius) ** 2)
@@ -69,19 +84,44 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
     q = ufl.sqrt(q_r ** 2 + q_y ** 2 + (1e-9 * radius) ** 2)
     distance = corner * q + (1 - corner) * (on_top * q_y + (1 - on_top) * q_r) - edge_radius
     n = corner * (q_r * e_rho + q_y * e_y) / q + (1 - corner) * (on_top * e_y + (1 - on_top) * e_rho)
-    depth = ufl.max_value(-distance, 0.0)
-    pn = penalty_N_m3 * depth
-    s = (u - u_old - (X - X_old) * ufl.as_vector((1.0, 0.0, 0.0))) / dt
+    return n, ufl.max_value(-distance, 0.0)
+
+
+def _unit_friction(u, u_old, coin_velocity, dt, n, pn, slip_rate_reg_m_s):
+    """Friction traction on the DEA per unit μ for an obstacle moving at ``coin_velocity`` along x."""
+    s = (u - u_old) / dt - coin_velocity * ufl.as_vector((1.0, 0.0, 0.0))
     s_T = s - ufl.dot(s, n) * n
-    t_T = -mu * pn * s_T / ufl.sqrt(ufl.dot(s_T, s_T) + slip_rate_reg_m_s ** 2)
-    traction = pn * n + t_T        # on the DEA, from the obstacle
-    return ObstacleTerms(
-        energy=0.5 * penalty_N_m3 * depth ** 2 * ds_contact,
-        friction_residual=-ufl.dot(t_T, v) * ds_contact,
-        Fx=-traction[0] * ds_contact,
-        Fy=traction[1] * ds_contact,
-        pressure=pn,
-    )
+    return -pn * s_T / ufl.sqrt(ufl.dot(s_T, s_T) + slip_rate_reg_m_s ** 2)
+
+
+@dataclass
+class PatchProbe:
+    """Forms that read the contact patch's side of the friction off a solved step (DEA-side: what
+    any coin under this patch would feel), all as forces on the obstacle along x (N, of the modelled
+    mesh) or their weights:
+
+    * ``pressure`` ∫ p_n ds and ``pressure_vx`` ∫ p_n Δu_x/Δt ds: the traction-weighted mean x velocity
+      of the patch is their ratio;
+    * ``normal_x`` −∫ p_n n_x ds: the normal traction's x part (the rim's fillet pushes back);
+    * ``drag`` −∫ t_T,x ds per unit μ, with the obstacle's velocity the Constant ``coin_velocity``
+      (set it, then assemble): the patch's friction–speed curve.
+    """
+    pressure: object
+    pressure_vx: object
+    normal_x: object
+    drag: object
+    coin_velocity: object
+
+
+def patch_probe(u, u_old, X, dt, ds_contact, coin_velocity, *, center_x0, top_y, radius, edge_radius,
+                penalty_N_m3, slip_rate_reg_m_s) -> PatchProbe:
+    """UFL forms of :class:`PatchProbe` for the obstacle of :func:`contact_terms` (same arguments;
+    ``coin_velocity`` a Constant in m/s)."""
+    n, depth = _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius)
+    pn = penalty_N_m3 * depth
+    t_T = _unit_friction(u, u_old, coin_velocity, dt, n, pn, slip_rate_reg_m_s)
+    return PatchProbe(pressure=pn * ds_contact, pressure_vx=pn * (u - u_old)[0] / dt * ds_contact,
+                      normal_x=-pn * n[0] * ds_contact, drag=-t_T[0] * ds_contact, coin_velocity=coin_velocity)
 
 
 def _rim_offsets(rho, y, top_y: float, radius: float, edge_radius: float):

@@ -240,6 +240,15 @@ class DEAProblem:
             self.centre_forms = ([compat.form(pn * self.ds_contact)]
                                  + [compat.form(pn * x[i] * self.ds_contact) for i in (0, 2)]
                                  + [compat.form(pn * abs(x[2]) * self.ds_contact)])
+            lay = self.layout
+            self.probe_velocity = dolfinx.fem.Constant(self.mesh, 0.0)
+            probe = contact.patch_probe(
+                u, self.u_old, self.X, self.dt, self.ds_contact, self.probe_velocity,
+                center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
+                edge_radius=self.obstacle.edge_radius_m, penalty_N_m3=self.penalty,
+                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
+            self.probe_forms = {k: compat.form(getattr(probe, k)) for k in ("pressure", "pressure_vx", "normal_x",
+                                                                           "drag")}
         if self.table is not None:
             self.table_forms = (compat.form(self.table.Rx), compat.form(self.table.Ry))
 
@@ -473,6 +482,25 @@ class DEAProblem:
         if not total > 0:
             return math.nan, math.nan, math.nan
         return mx / total, (0.0 if self.symmetry_factor != 1.0 else mz / total), mabs / total
+
+    def patch_probe(self, shares) -> tuple[float, float, list[float]]:
+        """The contact patch's side of the friction after a solved step, before it is accepted:
+        (v̄, N_x, drags). v̄ is the traction-weighted mean x velocity of the DEA's touching points
+        (m/s), N_x the x force of the normal traction on the obstacle (N), and drags[i] the x force
+        the friction would put on an obstacle moving at ``shares[i]`` × v̄, per unit μ_t (N). Forces
+        are of the whole model (a half model's doubled); all 0 when nothing touches."""
+        if self.contact is None:
+            return 0.0, 0.0, [0.0] * len(shares)
+        f, k = self.probe_forms, self.symmetry_factor
+        total = compat.assemble_scalar(f["pressure"], self.comm)
+        if not total > 0:
+            return 0.0, 0.0, [0.0] * len(shares)
+        vx = compat.assemble_scalar(f["pressure_vx"], self.comm) / total
+        drags = []
+        for share in shares:
+            self.probe_velocity.value = share * vx
+            drags.append(k * compat.assemble_scalar(f["drag"], self.comm))
+        return vx, k * compat.assemble_scalar(f["normal_x"], self.comm), drags
 
     def tip_displacement(self) -> np.ndarray:
         """Mean displacement of the free-end face (m)."""

@@ -57,7 +57,7 @@ from typing import Callable
 import numpy as np
 from tqdm import tqdm
 
-from deapull import protocol as protocols
+from deapull import dataset, protocol as protocols
 from deapull.protocol import Protocol
 from deapull.fem_solver.coin import CoinState, coulomb_step, force_balance_residual
 
@@ -108,6 +108,14 @@ class StepRecord:
     table_Rx: float
     table_Ry: float
     table_penetration_m: float
+    patch_vx: float
+    patch_normal_x: float
+    patch_drag_000: float
+    patch_drag_050: float
+    patch_drag_075: float
+    patch_drag_090: float
+    patch_drag_095: float
+    patch_drag_100: float
     wall_time_s: float
 
 
@@ -234,6 +242,8 @@ class Stepper:
         n_contact = p.active_contact_points()
         cx, cz, cabs = p.contact_centre() if n_contact else (0.0, 0.0, 0.0)
         Rx, Ry = p.table_reaction()
+        shares = dataset.PATCH_SHARES      # the first record (placement, dt = 0) has no step to probe
+        vx, normal_x, drags = p.patch_probe(shares) if dt > 0 else (0.0, 0.0, [0.0] * len(shares))
         rec = StepRecord(t=t, x=self.coin.x, u=self.coin.u, V=V, dt=dt, Fx=Fx, Fy=Fy, newton_iterations=its,
                          coupling_iterations=coupling_its, cutbacks=cutbacks, penetration_m=p.max_penetration(),
                          penetration_qp_m=p.max_penetration_at_points(),
@@ -243,7 +253,8 @@ class Stepper:
                          contact_x=cx if math.isfinite(cx) else 0.0, contact_z=cz if math.isfinite(cz) else 0.0,
                          contact_abs_z=cabs if math.isfinite(cabs) else 0.0,
                          table_Rx=Rx, table_Ry=Ry, table_penetration_m=p.table_penetration(),
-                         wall_time_s=wall)
+                         patch_vx=vx, patch_normal_x=normal_x,
+                         **dict(zip(dataset.PATCH_DRAGS, drags)), wall_time_s=wall)
         values = np.array([v for v in asdict(rec).values()], dtype=float)
         if not np.all(np.isfinite(values)):
             return None

@@ -205,6 +205,8 @@ def test_a_single_contact_line_on_the_rim_pushes_along_the_fillet_normal(rim, an
     Fx, Fy = p.obstacle_forces()
     assert Fy > 0 and Fx < 0
     assert -Fx / Fy == pytest.approx(math.tan(theta), rel=1e-5)   # measured 2e-8
+    # the patch probe's normal part is that push (frictionless: all of Fx)
+    assert -p.patch_probe(())[1] / Fy == pytest.approx(math.tan(theta), rel=1e-5)
     assert math.hypot(Fx, Fy) == pytest.approx(_fillet_line_force(sc.contact.penalty_N_m3, sc.dea.width_m,
                                                                   FILLET_M, 100e-6), rel=2e-3)
 
@@ -258,6 +260,42 @@ def test_sliding_block_drags_the_obstacle_along_its_slip_at_mu_t_times_the_press
         assert Fx == pytest.approx(sign * mu * Fy, rel=5e-5)
     else:
         assert abs(Fx) < 1e-12 * Fy
+
+
+# --- the patch probe: the friction–speed curve any coin under the patch would feel -------------
+
+def _friction_of_a_uniform_spread(v_lo, v_hi, coin, eps):
+    """Mean over v uniform in [v_lo, v_hi] of the regularised sign (v − U)/√((v − U)² + ε²)."""
+    a, b = v_lo - coin, v_hi - coin
+    return (math.hypot(b, eps) - math.hypot(a, eps)) / (b - a)
+
+
+@pytest.mark.parametrize("spread", [0.0, 1e-5])
+def test_the_patch_probe_reads_the_friction_speed_curve_of_a_sheared_patch(rim, spread):
+    """The DEA pressed 2 µm onto the flat top (uniform pressure) and moved in 1 s so that its
+    underside's x velocity runs linearly across the width, v_x = v̄ + 2 s z / w, with v̄ = 2 mm/s
+    and s = 0 (a rigid slide) or ε_v: uniform in [v̄ − s, v̄ + s]. The probe gives v̄, no normal
+    push along x, and at each coin speed U = c v̄ the drag per unit μ of that uniform spread,
+    Fy (√((v̄ + s − U)² + ε²) − √((v̄ − s − U)² + ε²)) / 2s, or Fy (v̄ − U)/√((v̄ − U)² + ε²) for s = 0.
+    (s is ε_v so that the rule's five points across the width integrate the smooth sign: a
+    spread of many ε_v puts a kink between them.)"""
+    sc, p, _ = rim
+    vbar, depth, eps = 2e-3, 2e-6, sc.contact.slip_rate_regularisation_m_s
+    _press(p, depth, slip_m=(vbar, 0.0), X_m=0.05)
+    coords, dofs = compat.displacement_dofs(p.W, p.has_parts)
+    p.w_old.x.array[dofs[:, 0]] -= 2 * spread * coords[:, 2] / sc.dea.width_m   # dt = 1 s
+    shares = (0.0, 0.9, 1 - 0.5 * eps / vbar, 1.0, 1 + 0.5 * eps / vbar, 1.2)
+    vx, normal_x, drags = p.patch_probe(shares)
+    Fy = p.obstacle_forces()[1]
+    assert vx == pytest.approx(vbar, rel=1e-9)
+    assert abs(normal_x) < 1e-12 * Fy
+    for c, drag in zip(shares, drags):
+        if spread:
+            want = _friction_of_a_uniform_spread(vbar - spread, vbar + spread, c * vbar, eps)
+        else:
+            want = (1 - c) * vbar / math.hypot((1 - c) * vbar, eps)
+        # the rule's own error across the width (5-point Gauss): 2e-5
+        assert drag / Fy == pytest.approx(want, abs=1e-4), c
 
 
 # --- the penalty's compliance ----------------------------------------------------------

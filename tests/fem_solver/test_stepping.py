@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from deapull import scene as scenes
+from deapull import dataset, scene as scenes
 from deapull.fem_solver.coin import CoinState, force_balance_residual
 from deapull.fem_solver.simulation import Simulation
 from deapull.fem_solver.stepping import SolveFailed
@@ -32,7 +32,7 @@ SCALE_GROUPS = (("tip_ux", "tip_uy", "tip_uz"), ("volume_change", "mean_abs_J_mi
 ADDED_KEYS = {"contact": ("quadrature_degree", "quadrature_rule", "min_active_points", "reach_m"), "mesh": ("symmetry", "x_grading", "tip_zone_m", "tip_zone_divisions", "rim_band_m", "rim_band_divisions"),
               "solver": ("linear_solver",), "time": ("placement_first_step",)}
 ADDED_VARIABLES = ("penetration_qp_m", "n_contact", "contact_x", "contact_z", "contact_abs_z", "table_Rx",
-                   "table_Ry", "table_penetration_m")
+                   "table_Ry", "table_penetration_m", "patch_vx", "patch_normal_x", *dataset.PATCH_DRAGS)
 #: sections added since (issue 23), pinned out of reach in C3_TEST
 ADDED_SECTIONS = ("table",)
 #: keys renamed since, with the value the fixture's run had under the old name
