@@ -19,7 +19,10 @@ since the twentieth session); runs in a second.
 
 ::
 
-    .venv/bin/python scripts/patch_probe.py [--data data]
+    .venv/bin/python scripts/patch_probe.py [--data data] [--plot docs/img/patch_probe.png]
+
+``--plot`` draws the friction-speed curves D(c)/D(0) of the training and test coins of set 3
+(C3, C5) at a few voltages.
 
 Not part of any make target.
 """
@@ -77,9 +80,39 @@ def errors(patch: dict, coin: dict) -> tuple[float, float]:
     return 100 * np.mean(np.abs(x - truth)) / travel, 100 * (abs(x[-1]) - abs(truth[-1])) / travel
 
 
+def plot(runs: dict, path: Path, voltages=(300.0, 340.0, 370.0, 390.0)) -> Path:
+    """D(c)/D(0) of C3's and C5's patches at ``voltages`` (on the ramp up), with each coin's own c."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for k, v in enumerate(voltages):
+        for name, style in (("C3", "-"), ("C5", "--")):
+            d = runs[int(name[1])]
+            up = np.arange(int(np.argmax(d["V"])) + 1)
+            i = up[int(np.argmin(np.abs(d["V"][up] - v)))]
+            curve = d["drag"][i] / d["drag"][i, 0]
+            colour = f"C{k}"
+            ax.plot(SHARES, curve, style, color=colour, marker="o", ms=3, label=f"{name}, {d['V'][i]:.0f} V")
+            c = d["u"][i] / d["patch_vx"][i]
+            ax.plot([c], [np.interp(c, SHARES, curve)], "x" if name == "C3" else "s", color=colour, ms=7, mfc="none")
+    ax.set_xlabel("coin speed / patch speed, c")
+    ax.set_ylabel("drag D(c) / D(0)")
+    ax.set_title("the patch's friction-speed curve under C3 (solid) and C5 (dashed);\n"
+                 "markers: where each coin moved", fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", default="data", type=Path, help="folder with C1.nc .. C8.nc (make sweep)")
+    p.add_argument("--plot", type=Path, help="also draw set 3's curves (C3, C5) into this PNG")
     args = p.parse_args(argv)
     missing = [f"C{i}.nc" for i in range(1, 9) if not (args.data / f"C{i}.nc").is_file()]
     if missing:
@@ -91,6 +124,8 @@ def main(argv=None) -> int:
         a, b = errors(runs[i], runs[i + 2]), errors(runs[i + 2], runs[i + 2])
         print(f"{i} (C{i} -> C{i + 2})          {a[0]:6.2f}  {a[1]:+6.1f}                        "
               f"{b[0]:6.2f}  {b[1]:+6.1f}")
+    if args.plot:
+        print(f"wrote {plot(runs, args.plot)}")
     return 0
 
 
