@@ -80,16 +80,18 @@ def errors(patch: dict, coin: dict) -> tuple[float, float]:
     return 100 * np.mean(np.abs(x - truth)) / travel, 100 * (abs(x[-1]) - abs(truth[-1])) / travel
 
 
-def plot(runs: dict, path: Path, voltages=(300.0, 340.0, 370.0, 390.0)) -> Path:
-    """D(c)/D(0) of C3's and C5's patches at ``voltages`` (on the ramp up), with each coin's own c."""
+def plot(runs: dict, path: Path, of_top=(0.75, 0.85, 0.925, 0.975)) -> Path:
+    """D(c)/D(0) of C3's and C5's patches at the voltages ``of_top`` × the ramp's top (on the way
+    up: 300, 340, 370 and 390 V on the 400 V ramp), with each coin's own c."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for k, v in enumerate(voltages):
+    for k, share_of_top in enumerate(of_top):
         for name, style in (("C3", "-"), ("C5", "--")):
             d = runs[int(name[1])]
             up = np.arange(int(np.argmax(d["V"])) + 1)
+            v = share_of_top * d["V"].max()
             i = up[int(np.argmin(np.abs(d["V"][up] - v)))]
             curve = d["drag"][i] / d["drag"][i, 0]
             colour = f"C{k}"
