@@ -68,7 +68,8 @@ def tiny_scene():
 #: eight setups (722 points each, two stages, 0.47–0.69 mm of travel)
 SWEEP = DATA / "sweep"
 #: small but real trainings: each kind once per session, shared by the tests
-QUICK = {"f": dict(epochs=80), "f-coulomb": dict(epochs=80), "f-memory": dict(epochs=80), "f-patch": dict(epochs=80), "nn": dict(epochs=40),
+QUICK = {"f": dict(epochs=80), "f-coulomb": dict(epochs=80), "f-memory": dict(epochs=80), "f-patch": dict(epochs=80),
+         "f-patch-lag": dict(epochs=80), "nn": dict(epochs=40),
          "lstm": dict(epochs=25, hidden=32, batch_size=64)}
 
 

@@ -266,16 +266,16 @@ class TipContactModel(TipFriction, Surrogate):
         """(V, X) before the first step: the DEA at rest, 0 V."""
         return torch.zeros(s0.shape[:-1] + (2,), dtype=s0.dtype, device=s0.device)
 
-    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi, spread=None):
+    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi, spread=None, grip=1.0):
         """d: the next state and z = (Fx, Fy), in float64, from the tip's stroke over the step
-        (and f-patch's spread β at the step's end)."""
+        (and f-patch's spread β at the step's end; f-patch-lag's grip factor on μ_t Fy)."""
         s, a = s.double(), a.double()
         phi = self._phi(phi, s, torch.float64)
         dt = a[..., 1]
         fy = fy.double()
         normal = torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
         w = (stroke.double() - stroke_prev.double()) / dt
-        u_next, fx = tip_coin_step(s[..., 1], w, phi.mu_t * torch.clamp(fy, min=0.0), phi.mu_b * normal,
+        u_next, fx = tip_coin_step(s[..., 1], w, phi.mu_t * torch.clamp(fy, min=0.0) * grip, phi.mu_b * normal,
                                    phi.mass_kg, dt, self.slip_eps(w, spread), self.iterations)
         return torch.stack([s[..., 0] + dt * u_next, u_next], dim=-1), torch.stack([fx, fy], dim=-1)
 
@@ -304,13 +304,13 @@ class TipContactModel(TipFriction, Surrogate):
     def predict_columns(self, c: dict, phi: Phi):
         return self.dynamics(c["s"], c["a"], c["stroke_prev"], c["stroke"], c["fy"], phi, c.get("spread"))[0][..., 0]
 
-    def stick_shortfall(self, c: dict, phi: Phi):
+    def stick_shortfall(self, c: dict, phi: Phi, grip=1.0):
         """(cap_b − |R|)⁺ Δt/m_c, with R the ground's reaction needed to hold the coin and cap_b =
         μ_b N its Coulomb limit; 0 where the model lets the coin slip."""
         phi = self._phi(phi, c["s"], torch.float64)
         dt, fy = c["a"][..., 1], c["fy"]
         w = (c["stroke"] - c["stroke_prev"]) / dt
-        cap_t = phi.mu_t * torch.clamp(fy, min=0.0)
+        cap_t = phi.mu_t * torch.clamp(fy, min=0.0) * grip
         cap_b = phi.mu_b * torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
         reaction = cap_t * regularised_slip(w, self.slip_eps(w, c.get("spread"))) + phi.mass_kg / dt * c["s"][..., 1]
         return torch.relu(cap_b - reaction.abs()) * dt / phi.mass_kg
@@ -378,3 +378,49 @@ class TipPatchModel(TipContactModel):
 
     def spread_of(self, raw):
         return torch.nn.functional.softplus(raw[..., 2] - self.spread_shift)
+
+
+@register
+class TipPatchLagModel(TipPatchModel):
+    """f-patch whose patch also depends on how far the coin lags behind the tip (kind
+    ``f-patch-lag``).
+
+    The FEM's patch probe (docs/surrogate.md, "The patch probe") shows that the patch a coin
+    meets is close to a function of V and of the coin's lag ℓ behind the tip's free end: a coin
+    that lags more meets less drag per pressing force. So d scales the tip's grip μ_t Fy by
+    exp(λ ℓ) and the spread β by exp(κ ℓ), with ℓ = |X| − |x| in mm (the stroke before the
+    step less the coin's travel). λ and κ are two learned scalars; zero is f-patch. Several
+    coins identify them (f_a: C3..C7); on one coin's ramp ℓ follows V, and m absorbs them.
+
+    No compiled path: the compiled MPC and inference would need ℓ's terms in x. It plans and
+    infers on the torch path (capabilities ``plan`` and ``infer``).
+    """
+
+    kind = "f-patch-lag"
+    label = "f (tip patch, lag)"
+    capabilities = frozenset({"plan", "infer"})
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # in m's dtype: rollouts take theirs from the first parameter
+        self.lag_grip = torch.nn.Parameter(torch.zeros(()))      # λ, per mm of lag
+        self.lag_spread = torch.nn.Parameter(torch.zeros(()))    # κ, per mm of lag
+
+    @staticmethod
+    def lag_mm(x, stroke_prev):
+        """ℓ: how far (mm) the coin at ``x`` is behind the tip's stroke before the step."""
+        return (stroke_prev.double().abs() - x.double().abs()) * 1e3
+
+    def patch_at(self, x, stroke_prev, spread):
+        """(grip factor exp(λ ℓ), spread β exp(κ ℓ)) of the patch that the coin at ``x`` meets."""
+        lag = self.lag_mm(x, stroke_prev)
+        grip = torch.exp(self.lag_grip.double() * lag)
+        return grip, None if spread is None else spread.double() * torch.exp(self.lag_spread.double() * lag)
+
+    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi, spread=None, grip=None):
+        grip, spread = self.patch_at(s[..., 0], stroke_prev, spread)
+        return super().dynamics(s, a, stroke_prev, stroke, fy, phi, spread, grip=grip)
+
+    def stick_shortfall(self, c: dict, phi: Phi, grip=None):
+        grip, spread = self.patch_at(c["s"][..., 0], c["stroke_prev"], c.get("spread"))
+        return super().stick_shortfall({**c, "spread": spread}, phi, grip=grip)

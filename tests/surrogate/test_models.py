@@ -145,6 +145,40 @@ def test_the_patch_spread_makes_a_rougher_coin_lag_more_as_the_fem_does(sweep):
     assert shares["C5"] == pytest.approx(1 - beta * 0.68 / math.sqrt(1 - 0.68 ** 2), abs=0.01)
 
 
+def test_f_patch_lag_grips_a_coin_that_lags_less_and_is_f_patch_at_zero(sweep):
+    """f-patch-lag's d: a tip far faster than the coin (full slide) pulls with μ_t Fy exp(λ ℓ),
+    ℓ = |X| − |x| in mm, so a coin 0.5 mm behind the tip feels exp(0.5 λ) of the pull of a coin
+    level with it; with λ = κ = 0 it is f-patch, step for step. Broken once (ℓ in m, not mm):
+    the pull's ratio came out 0.99995 against exp(-0.05) = 0.951."""
+    tr = transitions([sweep["C1"]], 1)
+    norm, rng = Normalisation.from_transitions(tr), InputRange.from_transitions(tr)
+    lag, patch = build("f-patch-lag", norm, rng).double(), build("f-patch", norm, rng).double()
+    patch.load_state_dict({k: v for k, v in lag.state_dict().items() if not k.startswith("lag_")})
+    fy, dt, phi = torch.tensor([0.02], dtype=torch.float64), 1e-3, Phi(MASS, 0.2, 0.5)
+    a = torch.tensor([[300.0, dt]], dtype=torch.float64)
+    stroke_prev = torch.tensor([-1.0e-3], dtype=torch.float64)
+    stroke = stroke_prev - 0.05 * dt                                # the tip at 50 mm/s: a full slide
+    coins = torch.tensor([[-1.0e-3, -1e-3], [-0.5e-3, -1e-3]], dtype=torch.float64)   # ℓ = 0 and 0.5 mm
+    spread = torch.tensor([0.3], dtype=torch.float64)
+    for s in coins:
+        want = patch.dynamics(s[None], a, stroke_prev, stroke, fy, phi, spread)
+        got = lag.dynamics(s[None], a, stroke_prev, stroke, fy, phi, spread)
+        assert all(torch.equal(g, w) for g, w in zip(got, want))
+    with torch.no_grad():
+        lag.lag_grip.fill_(-0.1)
+        lag.lag_spread.fill_(0.4)
+    # no spread: the pull is the full grip to (ε_v / 50 mm/s)² ~ 1e-8
+    pulls = [lag.dynamics(s[None], a, stroke_prev, stroke, fy, phi)[1][0, 0].item() for s in coins]
+    assert pulls[1] / pulls[0] == pytest.approx(math.exp(-0.1 * 0.5), rel=1e-6)
+    # with the spread: the lagging coin's is widened by exp(0.5 κ), in the regularised pull
+    # μ_t Fy exp(λ ℓ) (w − u')/√((w − u')² + ε²), ε² = ε_v² + (β exp(κ ℓ) w)²
+    (s1, z1), w = lag.dynamics(coins[1][None], a, stroke_prev, stroke, fy, phi, spread), -0.05
+    slip, eps = w - s1[0, 1].item(), math.hypot(lag.slip_rate_reg_m_s, 0.3 * math.exp(0.4 * 0.5) * w)
+    want = 0.5 * 0.02 * math.exp(-0.1 * 0.5) * slip / math.hypot(slip, eps)
+    assert abs(z1[0, 0].item()) == pytest.approx(abs(want), rel=1e-9)
+    assert "compiled_mpc" not in lag.capabilities and {"plan", "infer"} <= lag.capabilities
+
+
 def test_f_patch_sits_out_the_single_coin_sets_and_says_why(sweep, caplog):
     from deapull.surrogate.experiments import SET_KINDS
     from deapull.surrogate.train import TrainConfig
@@ -277,11 +311,11 @@ def test_paper_model_is_differentiable_in_state_action_and_weights(sweep):
 def test_registry_builds_every_kind_and_rejects_unknown_ones(sweep):
     tr = transitions([sweep["C1"]], 1)
     norm, rng = Normalisation.from_transitions(tr), InputRange.from_transitions(tr)
-    assert list(KINDS) == ["f", "f-coulomb", "f-patch", "f-memory", "nn", "lstm"]
+    assert list(KINDS) == ["f", "f-coulomb", "f-patch", "f-patch-lag", "f-memory", "nn", "lstm"]
     for kind, cls in KINDS.items():
         model = build(kind, norm, rng)
         assert type(model) is cls and model.kind == kind and cls.label
-    with pytest.raises(ValueError, match="unknown model kind 'gp'.*f, f-coulomb, f-patch, f-memory, nn, lstm"):
+    with pytest.raises(ValueError, match="unknown model kind 'gp'.*f, f-coulomb, f-patch, f-patch-lag, f-memory, nn, lstm"):
         build("gp", norm, rng)
 
 
