@@ -44,10 +44,15 @@ def test_the_sideways_slip_read_off_one_coin_predicts_another():
     assert mae_carried > 5 and travel_carried > 10
 
 
-def test_a_data_folder_without_the_sweep_is_refused_naming_the_files(tmp_path, capsys):
+@pytest.mark.parametrize("script", ["effective_slip", "patch_probe"])
+def test_a_data_folder_without_the_sweep_is_refused_naming_the_files(tmp_path, capsys, script):
+    """Both sweep diagnostics (scripts/effective_slip.py, scripts/patch_probe.py)."""
+    spec = importlib.util.spec_from_file_location(script, REPO / "scripts" / f"{script}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
     (tmp_path / "C1.nc").write_bytes(b"")
     with pytest.raises(SystemExit) as exit_:
-        effective_slip.main(["--data", str(tmp_path)])
+        module.main(["--data", str(tmp_path)])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert "C2.nc" in err and "C8.nc" in err and "C1.nc," not in err and "make sweep" in err

@@ -49,11 +49,3 @@ def test_the_share_sticks_the_coin_where_the_patch_cannot_beat_the_ground():
     assert patch_probe.share(0.002, drag, 0.5, 0.004) == 0.0           # the rim's push tips it over
     assert patch_probe.share(0.0, drag, 0.5, 0.004) == pytest.approx(dataset.PATCH_SHARES[-1])
 
-
-def test_a_data_folder_without_the_sweep_is_refused_naming_the_files(tmp_path, capsys):
-    (tmp_path / "C1.nc").write_bytes(b"")
-    with pytest.raises(SystemExit) as exit_:
-        patch_probe.main(["--data", str(tmp_path)])
-    assert exit_.value.code == 2
-    err = capsys.readouterr().err
-    assert "C2.nc" in err and "C8.nc" in err and "C1.nc," not in err and "make sweep" in err
