@@ -1,0 +1,62 @@
+"""How far each MPC model f_a is from the control plants f_s,1 / f_s,2 under the same push.
+
+A diagnostic for docs/control.md (twentieth session) and docs/surrogate.md (f-patch-lag): every
+model is rolled out from rest with the true phi of C1 (then C2), in 1 ms steps (the control
+plants' step), with V rising by ``--volts-per-step`` to 400 V and then held for 200 steps. It
+prints the plant's travel at 400 V and after the hold, and each f_a's difference from it in %.
+0.4 V per step is the FEM ramp's rate; 5 V per step is the MPC's full push.
+
+::
+
+    .venv/bin/python scripts/plant_gap.py out/models/fa out/s20/fa_lag [--volts-per-step 5]
+        [--data data] [--plants out/models]
+
+Not part of any make target.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+HOLD_STEPS = 200
+
+
+def travel(model, phi, voltages) -> np.ndarray:
+    """x (m) after each step of ``voltages`` of ``model`` as a plant, from rest."""
+    from deapull.control.plants import SurrogatePlant   # lazy: torch
+    plant = SurrogatePlant(model, phi)
+    plant.reset()
+    return np.array([plant.step(V)[0] for V in voltages])
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("models", nargs="+", type=Path, help="f_a folders written by `deapull train`")
+    p.add_argument("--volts-per-step", type=float, default=5.0)
+    p.add_argument("--data", type=Path, default=Path("data"), help="folder with C1.nc, C2.nc (their phi)")
+    p.add_argument("--plants", type=Path, default=Path("out/models"), help="folder with fs1/, fs2/ (make control)")
+    args = p.parse_args(argv)
+    if not 0 < args.volts_per_step <= 400:
+        p.error(f"--volts-per-step {args.volts_per_step!r}: must be in (0, 400]")
+    from deapull.surrogate import store                 # lazy: torch
+    from deapull.surrogate.data import load_setup
+    ramp = list(np.arange(args.volts_per_step, 400.0 + 1e-9, args.volts_per_step))
+    voltages, top = ramp + [400.0] * HOLD_STEPS, len(ramp) - 1
+    for n in (1, 2):
+        data = load_setup(args.data / f"C{n}.nc")
+        plant, _ = store.load(args.plants / f"fs{n}")
+        x_plant = travel(plant, plant.phi_of(data), voltages)
+        line = [f"C{n}: plant {abs(x_plant[top]) * 1e3:.4f} mm at 400 V, {abs(x_plant[-1]) * 1e3:.4f} mm held"]
+        for folder in args.models:
+            model, _ = store.load(folder)
+            x = travel(model, model.phi_of(data), voltages)
+            line.append(f"{folder.name}: {100 * (x[top] / x_plant[top] - 1):+.2f} % "
+                        f"({100 * (x[-1] / x_plant[-1] - 1):+.2f} % held)")
+        print(" | ".join(line))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
