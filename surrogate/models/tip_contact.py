@@ -266,10 +266,16 @@ class TipContactModel(TipFriction, Surrogate):
         """(V, X) before the first step: the DEA at rest, 0 V."""
         return torch.zeros(s0.shape[:-1] + (2,), dtype=s0.dtype, device=s0.device)
 
-    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi, spread=None, grip=1.0):
+    def patch_at(self, x, stroke_prev, spread):
+        """(grip factor on μ_t Fy, spread β) of the patch that the coin at ``x`` meets: (1, β)
+        here, functions of the coin's lag behind the tip in f-patch-lag."""
+        return 1.0, spread
+
+    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi, spread=None):
         """d: the next state and z = (Fx, Fy), in float64, from the tip's stroke over the step
-        (and f-patch's spread β at the step's end; f-patch-lag's grip factor on μ_t Fy)."""
+        (and f-patch's spread β at the step's end)."""
         s, a = s.double(), a.double()
+        grip, spread = self.patch_at(s[..., 0], stroke_prev, spread)
         phi = self._phi(phi, s, torch.float64)
         dt = a[..., 1]
         fy = fy.double()
@@ -304,15 +310,16 @@ class TipContactModel(TipFriction, Surrogate):
     def predict_columns(self, c: dict, phi: Phi):
         return self.dynamics(c["s"], c["a"], c["stroke_prev"], c["stroke"], c["fy"], phi, c.get("spread"))[0][..., 0]
 
-    def stick_shortfall(self, c: dict, phi: Phi, grip=1.0):
+    def stick_shortfall(self, c: dict, phi: Phi):
         """(cap_b − |R|)⁺ Δt/m_c, with R the ground's reaction needed to hold the coin and cap_b =
         μ_b N its Coulomb limit; 0 where the model lets the coin slip."""
+        grip, spread = self.patch_at(c["s"][..., 0], c["stroke_prev"], c.get("spread"))
         phi = self._phi(phi, c["s"], torch.float64)
         dt, fy = c["a"][..., 1], c["fy"]
         w = (c["stroke"] - c["stroke_prev"]) / dt
         cap_t = phi.mu_t * torch.clamp(fy, min=0.0) * grip
         cap_b = phi.mu_b * torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
-        reaction = cap_t * regularised_slip(w, self.slip_eps(w, c.get("spread"))) + phi.mass_kg / dt * c["s"][..., 1]
+        reaction = cap_t * regularised_slip(w, self.slip_eps(w, spread)) + phi.mass_kg / dt * c["s"][..., 1]
         return torch.relu(cap_b - reaction.abs()) * dt / phi.mass_kg
 
     def step(self, s, a, memory=None, phi: Phi | None = None):
@@ -416,11 +423,3 @@ class TipPatchLagModel(TipPatchModel):
         lag = self.lag_mm(x, stroke_prev)
         grip = torch.exp(self.lag_grip.double() * lag)
         return grip, None if spread is None else spread.double() * torch.exp(self.lag_spread.double() * lag)
-
-    def dynamics(self, s, a, stroke_prev, stroke, fy, phi: Phi, spread=None, grip=None):
-        grip, spread = self.patch_at(s[..., 0], stroke_prev, spread)
-        return super().dynamics(s, a, stroke_prev, stroke, fy, phi, spread, grip=grip)
-
-    def stick_shortfall(self, c: dict, phi: Phi, grip=None):
-        grip, spread = self.patch_at(c["s"][..., 0], c["stroke_prev"], c.get("spread"))
-        return super().stick_shortfall({**c, "spread": spread}, phi, grip=grip)
