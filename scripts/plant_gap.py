@@ -40,6 +40,10 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if not 0 < args.volts_per_step <= 400:
         p.error(f"--volts-per-step {args.volts_per_step!r}: must be in (0, 400]")
+    folders = [*args.models, args.plants / "fs1", args.plants / "fs2"]
+    missing = [str(f) for f in folders if not (f / "model.json").is_file()]
+    if missing:
+        p.error(f"no model.json (a folder written by `deapull train`) in {', '.join(missing)}")
     from deapull.surrogate import store                 # lazy: torch
     from deapull.surrogate.data import load_setup
     ramp = list(np.arange(args.volts_per_step, 400.0 + 1e-9, args.volts_per_step))
