@@ -16,7 +16,7 @@ MPIRUN := mpirun -n $(NP)
 FIDELITY ?= resolved
 FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
-.PHONY: help setup demo test mesh solve sweep excitation bench-fem bench-blas bench-control-fem bench-inference control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation push-ramps bench-fem bench-blas bench-control-fem bench-inference control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -43,6 +43,9 @@ solve: setup ## FEM solve of one setup: make solve SETUP=C5
 
 sweep: setup ## the 8 setups at FIDELITY (resolved) under mpirun -n $(NP) into $(DATA)/ (~15 min; resumes if interrupted)
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --out $(DATA)
+
+push-ramps: setup ## the ramp in 80 ms (the MPC's full push, 5 V per 1 ms step), then held 200 ms, for C1..C8 into $(DATA)/push (resumes; ~3 min a setup)
+	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --protocols push --out $(DATA)/push
 
 excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C3,C5,C7 into $(DATA)/excitation (resumes)
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --setups C1,C3,C5,C7 --protocols excitation \

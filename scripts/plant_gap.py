@@ -6,10 +6,14 @@ plants' step), with V rising by ``--volts-per-step`` to 400 V and then held for 
 prints the plant's travel at 400 V and after the hold, and each f_a's difference from it in %.
 0.4 V per step is the FEM ramp's rate; 5 V per step is the MPC's full push.
 
+With ``--fem-runs DIR`` the push is instead the voltage of the FEM runs ``DIR/C1_*.nc`` and
+``DIR/C2_*.nc`` (e.g. the 80 ms ramps of ``make fast-ramps``), sampled every 1 ms, and every model,
+the plants included, is compared with the FEM's own travel at the ramp's top and at the end.
+
 ::
 
     .venv/bin/python scripts/plant_gap.py out/models/fa out/s20/fa_lag [--volts-per-step 5]
-        [--data data] [--plants out/models]
+        [--data data] [--plants out/models] [--fem-runs data/fast]
 
 Not part of any make target.
 """
@@ -37,7 +41,14 @@ def main(argv=None) -> int:
     p.add_argument("--volts-per-step", type=float, default=5.0)
     p.add_argument("--data", type=Path, default=Path("data"), help="folder with C1.nc, C2.nc (their phi)")
     p.add_argument("--plants", type=Path, default=Path("out/models"), help="folder with fs1/, fs2/ (make control)")
+    p.add_argument("--fem-runs", type=Path, default=None,
+                   help="folder with FEM runs C1_*.nc, C2_*.nc: their voltage is the push, their travel the reference")
     args = p.parse_args(argv)
+    if args.fem_runs is not None:
+        runs = {n: sorted(args.fem_runs.glob(f"C{n}_*.nc")) for n in (1, 2)}
+        if not all(runs.values()):
+            p.error(f"--fem-runs {args.fem_runs}: needs a run C1_<name>.nc and C2_<name>.nc (found "
+                    f"{', '.join(str(f) for fs in runs.values() for f in fs) or 'none'})")
     if not 0 < args.volts_per_step <= 400:
         p.error(f"--volts-per-step {args.volts_per_step!r}: must be in (0, 400]")
     folders = [*args.models, args.plants / "fs1", args.plants / "fs2"]
@@ -46,6 +57,23 @@ def main(argv=None) -> int:
         p.error(f"no model.json (a folder written by `deapull train`) in {', '.join(missing)}")
     from deapull.surrogate import store                 # lazy: torch
     from deapull.surrogate.data import load_setup
+    if args.fem_runs is not None:
+        for n in (1, 2):
+            data = load_setup(args.data / f"C{n}.nc")
+            for run in runs[n]:
+                fem = load_setup(run)
+                steps = np.arange(1, int(round(fem.t[-1] / 1e-3)) + 1) * 1e-3
+                voltages, x_fem = np.interp(steps, fem.t, fem.V), np.interp(steps, fem.t, fem.x)
+                top = int(np.argmax(voltages >= voltages.max() - 1e-6))
+                line = [f"{run.stem}: FEM {abs(x_fem[top]) * 1e3:.4f} mm at {voltages[top]:.0f} V "
+                        f"(t = {steps[top] * 1e3:.0f} ms), {abs(x_fem[-1]) * 1e3:.4f} mm at the end"]
+                for folder in [args.plants / f"fs{n}", *args.models]:
+                    model, _ = store.load(folder)
+                    x = travel(model, model.phi_of(data), voltages)
+                    line.append(f"{folder.parent.name}/{folder.name}: {100 * (x[top] / x_fem[top] - 1):+.2f} % "
+                                f"({100 * (x[-1] / x_fem[-1] - 1):+.2f} % at the end)")
+                print(" | ".join(line))
+        return 0
     ramp = list(np.arange(args.volts_per_step, 400.0 + 1e-9, args.volts_per_step))
     voltages, top = ramp + [400.0] * HOLD_STEPS, len(ramp) - 1
     for n in (1, 2):

@@ -46,9 +46,10 @@ def register(sub) -> None:
     p = sub.add_parser("sweep", help="solve every setup of a scene (run under mpirun -n N)")
     add_scene_args(p, setup=False, scene_default="coin_pull")
     p.add_argument("--setups", default="", help="comma-separated setups (default: all)")
-    p.add_argument("--protocols", default="scene", choices=("scene", "excitation"),
+    p.add_argument("--protocols", default="scene", choices=("scene", "excitation", "push"),
                    help="scene: the scene's own protocol -> <setup>.nc (default); excitation: ramp-hold-ramp, "
-                        "triangle, release and 3 seeded random inputs -> <setup>_<protocol>.nc")
+                        "triangle, release and 3 seeded random inputs -> <setup>_<protocol>.nc; push: the ramp in "
+                        "80 ms (the MPC's 5 V per 1 ms step), then held -> <setup>_fast.nc")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--ranks-per-setup", type=int, default=1, help="ranks sharing one setup's mesh")
     p.set_defaults(func=cmd_sweep)

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import logging
 from pathlib import Path
 
 from deapull.errors import InputError
 from deapull.io import write_json
+
+log = logging.getLogger(__name__)
 
 # lazy imports below: the surrogate modules load torch, which the CLI starts without
 
@@ -67,17 +70,53 @@ def _config(args, kind: str):
                        batch_size=args.batch_size, lr=args.lr, restarts=restarts_for(args, kind))
 
 
+def extra_runs(folders, train_names: list[str], val_name: str) -> list[tuple[str, Path, str]]:
+    """The runs ``<folder>/<setup>_<name>.nc`` of the training and validation setups, as (setup,
+    path, role) with role ``train`` or ``val``, in order.
+
+    Raises
+    ------
+    InputError
+        When a folder is missing, or holds no run of any training setup (naming the folder, the
+        setups and the file names it looked for).
+    """
+    out = []
+    for folder in map(Path, folders):
+        if not folder.is_dir():
+            raise InputError(f"--runs {folder}: no such folder")
+        found = []
+        for name, role in [*((n, "train") for n in train_names), (val_name, "val")]:
+            found += [(name, path, role) for path in sorted(folder.glob(f"{name}_*.nc"))]
+        if not any(role == "train" for _, _, role in found):
+            raise InputError(f"--runs {folder}: no run of the training setups {','.join(train_names)} "
+                             f"(files named <setup>_<name>.nc, e.g. {train_names[0]}_fast.nc)")
+        out += found
+    return out
+
+
 def cmd_train(args) -> int:
     from deapull.surrogate import store  # lazy: torch
     from deapull.surrogate.data import load_sweep, parse_setups  # lazy: torch
     from deapull.surrogate.train import train  # lazy: torch
     config = _config(args, args.model)
     train_names = parse_setups(args.train)
+    extra = extra_runs(args.runs or [], train_names, args.val)     # refuses before any loading
     data = load_sweep(args.data, list(dict.fromkeys([*train_names, args.val])))
-    result = train(config, [data[n] for n in train_names], data[args.val])
+    train_sets, val_sets = [data[n] for n in train_names], [data[args.val]]
+    phis = None
+    if extra:
+        from deapull.surrogate.data import load_setup  # lazy: torch
+        from deapull.surrogate.models import KINDS  # lazy: torch
+        kind = KINDS[args.model]
+        # a run's coin is its setup's: φ from the setup's ramp (a release run alone does not give V^T)
+        phis = {path.stem: kind.phi_of(data[coin]) for coin, path, _ in extra} if kind.physics else None
+        for coin, path, role in extra:
+            (train_sets if role == "train" else val_sets).append(load_setup(path))
+        log.info("extra runs: %s", ", ".join(f"{path.stem} ({role})" for _, path, role in extra))
+    result = train(config, train_sets, val_sets, phis=phis)
     out = store.save(result.model, args.out, result.summary(), result.history)
     scores = ", ".join(f"{r['seed']}: {r['val_x_error_pct']:.3g} %" for r in result.restarts)
-    print(f"trained {args.model} on {','.join(train_names)} (val {args.val}): kept seed {result.seed} of "
+    print(f"trained {args.model} on {','.join(d.name for d in train_sets)} (val {','.join(d.name for d in val_sets)}): kept seed {result.seed} of "
           f"{len(result.restarts)} (validation rollout x error by seed: {scores}); best val loss "
           f"{result.best_val_loss:.4g} at epoch {result.best_epoch}/{len(result.history)}, "
           f"{result.wall_time_s:.1f} s -> {out}")
@@ -185,6 +224,10 @@ def register(sub) -> None:
     p.add_argument("--val", required=True, help="validation setup for early stopping, e.g. C2")
     p.add_argument("--model", required=True, choices=list(KINDS), help="model kind")
     p.add_argument("--out", required=True, help="output folder (model.pt, model.json, history.csv)")
+    p.add_argument("--runs", action="append", metavar="DIR",
+                   help="a folder of further runs <setup>_<name>.nc of the same coins (e.g. the excitation set, "
+                   "or ramps at another rate): those of the training setups are trained on too, those of the "
+                   "validation setup validated on; repeatable")
     _training_args(p, 1000)
     p.set_defaults(func=cmd_train)
 

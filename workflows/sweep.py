@@ -8,7 +8,9 @@ the closing table.
 ``--protocols`` picks the voltage protocols (:data:`PROTOCOL_SETS`): ``scene`` (default) plays
 the scene's own protocol into ``<out>/<setup>.nc``; ``excitation`` plays the inputs a
 controller applies — ramp–hold–ramp, triangle, release and three seeded random piecewise-linear
-inputs — into ``<out>/<setup>_<protocol>.nc`` (file names say the setup and the protocol).
+inputs — into ``<out>/<setup>_<protocol>.nc`` (file names say the setup and the protocol);
+``push`` plays the MPC's full push (the scene's ramp in 80 ms, 1 ms steps, then held) into
+``<out>/<setup>_fast.nc``.
 """
 from __future__ import annotations
 
@@ -34,6 +36,11 @@ PROTOCOL_SETS = {
         **{f"random{k}": ("load.protocol='random'", f"load.seed={k}", "load.rate_max_V_s=2000.0",
                           "load.segment_min_s=0.05", "load.segment_max_s=0.2", "load.end_time_s=1.0")
            for k in (1, 2, 3)},
+    },
+    # the MPC's full push (5 V per 1 ms step: 0 -> 400 V in 80 ms), then 200 ms held: the coin moves
+    # ~30 mm/s at the top, twelve times the ramp's speed, and coasts ~0.1 mm after it (docs/control.md)
+    "push": {
+        "fast": ("load.ramp_time_s=0.08", "load.end_time_s=0.28", "time.dt_max_s=0.001"),
     },
 }
 COLUMNS = (("setup", "case", "12s"), ("points", "steps", "6d"), ("travel mm", "travel_mm", "10.3f"),

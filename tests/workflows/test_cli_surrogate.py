@@ -179,3 +179,34 @@ def test_deapull_entry_point_maps_bad_input_to_exit_2(sweep_dir, tmp_path, capsy
                  "--out", str(tmp_path / "m")])
     assert code == 2
     assert "C9.nc" in capsys.readouterr().err
+
+
+def test_train_takes_further_runs_of_its_coins_with_the_coins_phi(sweep_dir, tmp_path):
+    """``--runs DIR``: the runs ``<setup>_<name>.nc`` of the training setups join the training, the
+    validation setup's the validation, each with its setup's φ (here a copy of C3's ramp filed as a
+    run of C1 gets C1's threshold voltage V^T, not C3's); a folder without a run of a training
+    setup is refused before any model is trained."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "C1_other.nc").write_bytes((sweep_dir / "C3.nc").read_bytes())
+    (runs / "C2_other.nc").write_bytes((sweep_dir / "C2.nc").read_bytes())
+    (runs / "C4_other.nc").write_bytes((sweep_dir / "C4.nc").read_bytes())    # neither trained nor validated
+    out = tmp_path / "m"
+    assert _run("train", "--data", str(sweep_dir), "--train", "C1", "--val", "C2", "--model", "f", "--out", str(out),
+                "--epochs", "2", "--restarts", "1", "--runs", str(runs)) == 0
+    setups = json.loads((out / "model.json").read_text())["training"]["setups"]
+    assert {name: s["role"] for name, s in setups.items()} == {"C1": "train", "C1_other": "train", "C2": "val",
+                                                                 "C2_other": "val"}
+    assert setups["C1_other"]["v_threshold_V"] == setups["C1"]["v_threshold_V"]
+    assert setups["C1_other"]["steps"] == _fem(sweep_dir / "C3.nc")["x"].size
+    alone = tmp_path / "alone"
+    assert _run("train", "--data", str(sweep_dir), "--train", "C3", "--val", "C2", "--model", "f", "--out",
+                str(alone), "--epochs", "2", "--restarts", "1") == 0
+    assert json.loads((alone / "model.json").read_text())["training"]["setups"]["C3"]["v_threshold_V"] != \
+        setups["C1_other"]["v_threshold_V"], "the fixture's C1 and C3 thresholds must differ for the check above"
+    for folder, match in ((tmp_path / "none", r"--runs .*none: no such folder"),
+                          (runs, r"--runs .*runs: no run of the training setups C5 \(files named <setup>_<name>.nc")):
+        with pytest.raises(InputError, match=match):
+            _run("train", "--data", str(sweep_dir), "--train", "C5", "--val", "C2", "--model", "f", "--out",
+                 str(tmp_path / "refused"), "--runs", str(folder))
+    assert not (tmp_path / "refused").exists()

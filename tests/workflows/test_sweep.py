@@ -24,6 +24,15 @@ def test_excitation_cases_name_setup_and_protocol():
         sweep_cases("coin_pull", ["C1"], (), "chirp")
 
 
+def test_the_push_case_is_the_mpcs_full_push_then_held():
+    (case,) = sweep_cases("coin_pull", ["C3"], scenes.fidelity_overrides("coin_pull", "resolved"), "push")
+    sc = scenes.load("coin_pull", setup=case.setup, overrides=case.overrides)
+    volts = protocol.from_load(sc.load)
+    assert case.name == "C3_fast" and sc.time.dt_max_s == 0.001, "1 ms steps, the control plants' step"
+    assert [volts.voltage(t) for t in (0.001, 0.04, 0.08, 0.28)] == pytest.approx([5.0, 200.0, 400.0, 400.0])
+    assert sc.load.end_time_s == 0.28 and sc.contact.quadrature_degree == 20, "held 200 ms, at the fidelity asked"
+
+
 def test_the_resolved_release_case_meshes_the_rim_where_the_placed_dea_crosses_it():
     cases = sweep_cases("coin_pull", ["C1"], scenes.fidelity_overrides("coin_pull", "resolved"), "excitation")
     bands = {c.name: scenes.load("coin_pull", setup=c.setup, overrides=c.overrides).mesh.rim_band_m for c in cases}
