@@ -35,6 +35,19 @@ def travel(model, phi, voltages) -> np.ndarray:
     return np.array([plant.step(V)[0] for V in voltages])
 
 
+def gaps(folders, data, voltages, x_ref, top: int, end: str) -> list[str]:
+    """Each model's travel against ``x_ref`` at step ``top`` and at the last step, in %, with the
+    coin of ``data`` (a model is named by its folder and the folder above it)."""
+    from deapull.surrogate import store                 # lazy: torch
+    cells = []
+    for folder in folders:
+        model, _ = store.load(folder)
+        x = travel(model, model.phi_of(data), voltages)
+        cells.append(f"{folder.parent.name}/{folder.name}: {100 * (x[top] / x_ref[top] - 1):+.2f} % "
+                     f"({100 * (x[-1] / x_ref[-1] - 1):+.2f} % {end})")
+    return cells
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("models", nargs="+", type=Path, help="f_a folders written by `deapull train`")
@@ -67,11 +80,7 @@ def main(argv=None) -> int:
                 top = int(np.argmax(voltages >= voltages.max() - 1e-6))
                 line = [f"{run.stem}: FEM {abs(x_fem[top]) * 1e3:.4f} mm at {voltages[top]:.0f} V "
                         f"(t = {steps[top] * 1e3:.0f} ms), {abs(x_fem[-1]) * 1e3:.4f} mm at the end"]
-                for folder in [args.plants / f"fs{n}", *args.models]:
-                    model, _ = store.load(folder)
-                    x = travel(model, model.phi_of(data), voltages)
-                    line.append(f"{folder.parent.name}/{folder.name}: {100 * (x[top] / x_fem[top] - 1):+.2f} % "
-                                f"({100 * (x[-1] / x_fem[-1] - 1):+.2f} % at the end)")
+                line += gaps([args.plants / f"fs{n}", *args.models], data, voltages, x_fem, top, "at the end")
                 print(" | ".join(line))
         return 0
     ramp = list(np.arange(args.volts_per_step, 400.0 + 1e-9, args.volts_per_step))
@@ -81,11 +90,7 @@ def main(argv=None) -> int:
         plant, _ = store.load(args.plants / f"fs{n}")
         x_plant = travel(plant, plant.phi_of(data), voltages)
         line = [f"C{n}: plant {abs(x_plant[top]) * 1e3:.4f} mm at 400 V, {abs(x_plant[-1]) * 1e3:.4f} mm held"]
-        for folder in args.models:
-            model, _ = store.load(folder)
-            x = travel(model, model.phi_of(data), voltages)
-            line.append(f"{folder.name}: {100 * (x[top] / x_plant[top] - 1):+.2f} % "
-                        f"({100 * (x[-1] / x_plant[-1] - 1):+.2f} % held)")
+        line += gaps(args.models, data, voltages, x_plant, top, "held")
         print(" | ".join(line))
     return 0
 
