@@ -91,6 +91,10 @@ def extra_runs(folders, train_names: list[str], val_name: str) -> list[tuple[str
             raise InputError(f"--runs {folder}: no run of the training setups {','.join(train_names)} "
                              f"(files named <setup>_<name>.nc, e.g. {train_names[0]}_fast.nc)")
         out += found
+    names = [path.stem for _, path, _ in out]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"--runs: the run {twice[0]} is in more than one folder; a run's name must be unique")
     return out
 
 
@@ -116,7 +120,8 @@ def cmd_train(args) -> int:
     result = train(config, train_sets, val_sets, phis=phis)
     out = store.save(result.model, args.out, result.summary(), result.history)
     scores = ", ".join(f"{r['seed']}: {r['val_x_error_pct']:.3g} %" for r in result.restarts)
-    print(f"trained {args.model} on {','.join(d.name for d in train_sets)} (val {','.join(d.name for d in val_sets)}): kept seed {result.seed} of "
+    trained, validated = (",".join(d.name for d in sets) for sets in (train_sets, val_sets))
+    print(f"trained {args.model} on {trained} (val {validated}): kept seed {result.seed} of "
           f"{len(result.restarts)} (validation rollout x error by seed: {scores}); best val loss "
           f"{result.best_val_loss:.4g} at epoch {result.best_epoch}/{len(result.history)}, "
           f"{result.wall_time_s:.1f} s -> {out}")

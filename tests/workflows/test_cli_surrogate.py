@@ -209,4 +209,10 @@ def test_train_takes_further_runs_of_its_coins_with_the_coins_phi(sweep_dir, tmp
         with pytest.raises(InputError, match=match):
             _run("train", "--data", str(sweep_dir), "--train", "C5", "--val", "C2", "--model", "f", "--out",
                  str(tmp_path / "refused"), "--runs", str(folder))
+    again = tmp_path / "again"
+    again.mkdir()
+    (again / "C1_other.nc").write_bytes((sweep_dir / "C1.nc").read_bytes())
+    with pytest.raises(InputError, match=r"--runs: the run C1_other is in more than one folder"):
+        _run("train", "--data", str(sweep_dir), "--train", "C1", "--val", "C2", "--model", "f", "--out",
+             str(tmp_path / "refused"), "--runs", str(runs), "--runs", str(again))
     assert not (tmp_path / "refused").exists()
