@@ -103,9 +103,9 @@ MPC_ARRIVAL ?= --mpc-approach-mm 0.1 --mpc-no-reach-gate
 control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 episodes per noise in NOISE (needs $(DATA); runs make push-ramps first when f_a is missing, ~25 min)
 	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
 		--val C$$((3 - s)) --model f-coulomb --epochs 300 --out $(MODELS)/fs$$s || exit 1; done
-	@test -f $(MODELS)/fa_push/model.json || { $(MAKE) --no-print-directory push-ramps && $(DEAPULL) train \
-		--data $(DATA) --train C3,C4,C5,C6,C7 --val C8 --model f-coulomb --epochs 300 --runs $(DATA)/push \
-		--out $(MODELS)/fa_push; }
+	@test -f $(MODELS)/fa_push/model.json || $(MAKE) --no-print-directory push-ramps
+	@test -f $(MODELS)/fa_push/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+		--model f-coulomb --epochs 300 --runs $(DATA)/push --out $(MODELS)/fa_push
 	$(DEAPULL) control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 --noise $(NOISE) \
 		--phi-prior coins --data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa_push --sac-dir '$(MODELS)/sac{n}' \
 		$(MPC_ARRIVAL) --out $(OUT)/control
