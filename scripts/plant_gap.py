@@ -7,13 +7,13 @@ prints the plant's travel at 400 V and after the hold, and each f_a's difference
 0.4 V per step is the FEM ramp's rate; 5 V per step is the MPC's full push.
 
 With ``--fem-runs DIR`` the push is instead the voltage of the FEM runs ``DIR/C1_*.nc`` and
-``DIR/C2_*.nc`` (e.g. the 80 ms ramps of ``make fast-ramps``), sampled every 1 ms, and every model,
+``DIR/C2_*.nc`` (e.g. the 80 ms pushes of ``make push-ramps``), sampled every 1 ms, and every model,
 the plants included, is compared with the FEM's own travel at the ramp's top and at the end.
 
 ::
 
     .venv/bin/python scripts/plant_gap.py out/models/fa out/s20/fa_lag [--volts-per-step 5]
-        [--data data] [--plants out/models] [--fem-runs data/fast]
+        [--data data] [--plants out/models] [--fem-runs data/push]
 
 Not part of any make target.
 """

@@ -127,7 +127,7 @@ def _load(data_dir, excitation_dir, coin, protocol) -> SetupData:
     return load_setup(run_path(data_dir, excitation_dir, coin, protocol))
 
 
-def _phi(kind: str, ramp: SetupData):
+def coin_phi(kind: str, ramp: SetupData):
     """φ of a coin for ``kind``, from the coin's ramp run (None for the black boxes)."""
     cls = KINDS[kind]
     return cls.phi_of(ramp) if cls.physics else None
@@ -152,7 +152,7 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
     ramps = {c: _load(data_dir, excitation_dir, c, "ramp") for c in (*design.train_coins, *design.val_coins)}
     phis = {}
     for c in ramps:
-        phi = _phi(kind, ramps[c])
+        phi = coin_phi(kind, ramps[c])
         if phi is not None:
             phis.update({run_name(c, p): phi for p in design.train_protocols})
     result = train(replace(base, kind=kind), train_runs, val_runs, phis=phis)
@@ -171,7 +171,7 @@ def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_di
     if cache.is_file() and all(f.is_file() and cache.stat().st_mtime >= f.stat().st_mtime for f in inputs):
         return json.loads(cache.read_text())
     data = _load(data_dir, excitation_dir, coin, protocol)
-    phi = _phi(kind, _load(data_dir, excitation_dir, coin, "ramp"))
+    phi = coin_phi(kind, _load(data_dir, excitation_dir, coin, "ramp"))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutOfRangeWarning)
         ev = evaluate(model, data, phi=phi)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from deapull.workflows.args import add_scene_args, load_scene, names, overrides_of
-from deapull.workflows.sweep import format_table, sweep
+from deapull.workflows.sweep import PROTOCOL_SETS, format_table, sweep
 
 
 def cmd_solve(args) -> int:
@@ -46,7 +46,7 @@ def register(sub) -> None:
     p = sub.add_parser("sweep", help="solve every setup of a scene (run under mpirun -n N)")
     add_scene_args(p, setup=False, scene_default="coin_pull")
     p.add_argument("--setups", default="", help="comma-separated setups (default: all)")
-    p.add_argument("--protocols", default="scene", choices=("scene", "excitation", "push"),
+    p.add_argument("--protocols", default="scene", choices=tuple(PROTOCOL_SETS),
                    help="scene: the scene's own protocol -> <setup>.nc (default); excitation: ramp-hold-ramp, "
                         "triangle, release and 3 seeded random inputs -> <setup>_<protocol>.nc; push: the ramp in "
                         "80 ms (the MPC's 5 V per 1 ms step), then held -> <setup>_fast.nc")

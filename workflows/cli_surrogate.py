@@ -110,10 +110,10 @@ def cmd_train(args) -> int:
     phis = None
     if extra:
         from deapull.surrogate.data import load_setup  # lazy: torch
-        from deapull.surrogate.models import KINDS  # lazy: torch
-        kind = KINDS[args.model]
+        from deapull.surrogate.protocol_experiments import coin_phi  # lazy: torch
         # a run's coin is its setup's: φ from the setup's ramp (a release run alone does not give V^T)
-        phis = {path.stem: kind.phi_of(data[coin]) for coin, path, _ in extra} if kind.physics else None
+        coins = {coin: coin_phi(args.model, data[coin]) for coin, _, _ in extra}
+        phis = {path.stem: coins[coin] for coin, path, _ in extra if coins[coin] is not None}
         for coin, path, role in extra:
             (train_sets if role == "train" else val_sets).append(load_setup(path))
         log.info("extra runs: %s", ", ".join(f"{path.stem} ({role})" for _, path, role in extra))
