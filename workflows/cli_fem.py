@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import sys
 
-from deapull.workflows.args import add_scene_args, load_scene, names, overrides_of
+from deapull import scene as scenes
+from deapull.workflows.args import add_scene_args, load_scene, names
 from deapull.workflows.sweep import PROTOCOL_SETS, format_table, sweep
 
 
@@ -28,8 +29,9 @@ def cmd_sweep(args) -> int:
     from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
 
     setups = names(args.setups)
-    rows = sweep(args.scene, setups, args.out, MPI.COMM_WORLD, args.ranks_per_setup, overrides_of(args),
-                 args.protocols)
+    # the fidelity before the protocol set's overrides (a set may carry its own mesh), --set last
+    rows = sweep(args.scene, setups, args.out, MPI.COMM_WORLD, args.ranks_per_setup, tuple(args.overrides),
+                 args.protocols, scenes.fidelity_overrides(args.scene, args.fidelity))
     if MPI.COMM_WORLD.rank == 0:
         print(format_table(rows))
     return 0 if all(r["status"] == "ok" for r in rows) else 1
