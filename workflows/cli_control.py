@@ -18,7 +18,7 @@ def cmd_control(args) -> int:
     import torch  # lazy: as above
     torch.set_num_threads(args.threads)
     episodes = control.run(config)
-    print(control.summary_table([e.row for e in episodes]))
+    print(control.summary_table([e.row for e in episodes], config.tolerance_m))
     print(f"wrote {config.out}/control.csv, table.md, traces.npz, run.json and the figures")
     return 0
 

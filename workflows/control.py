@@ -511,7 +511,7 @@ def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list
     rows = [e.row for e in episodes] + list(left_out)
     columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred", "crlb") for f in PHI_FIELDS]
     write_csv(out / "control.csv", rows, columns)
-    write_text(out / "table.md", summary_table(rows) + "\n")
+    write_text(out / "table.md", summary_table(rows, task.tolerance_m) + "\n")
     traces = {}
     for k, e in enumerate(episodes):
         key = f"{e.row['policy']}|{e.row['plant']}|{e.row['noise_std_m']:g}|{e.row['episode']}"

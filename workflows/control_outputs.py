@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deapull.control.filters import settle_bound
 from deapull.io import atomic_write, markdown_table
 from deapull.paper import CONTROL
 
@@ -81,8 +82,11 @@ def _save(fig, path: Path) -> None:
     plt.close(fig)
 
 
-def summary_rows(rows: list[dict]) -> list[dict]:
-    """One row per (policy, plant, noise): counts, medians and the paper's numbers."""
+def summary_rows(rows: list[dict], tolerance_m: float = 1e-5) -> list[dict]:
+    """One row per (policy, plant, noise): counts, medians and the paper's numbers, and the
+    information bound: the episodes that a controller can expect to settle at most in as many
+    iterations as each took, knowing the plant's travel only from the observations
+    (:func:`~deapull.control.filters.settle_bound`, docs/control.md "What noise allows")."""
     groups: dict = {}
     for r in rows:
         groups.setdefault((r["policy"], r["plant"], r["noise_std_m"], r.get("setpoints_mm", "")), []).append(r)
@@ -101,16 +105,19 @@ def summary_rows(rows: list[dict]) -> list[dict]:
                     "overshoot_mm": 1e3 * max(overshoot) if overshoot else math.nan,
                     "ms": float(np.mean([r["ms_per_iteration"] for r in group])),
                     "training": group[0]["training_steps"],
+                    "bound": "–" if not its else
+                    f"{sum(settle_bound(float(noise), tolerance_m, n) for n in its):.1f}/{len(group)}",
                     "paper_its": paper_its, "paper_ms": paper_ms})
     return out
 
 
-def summary_table(rows: list[dict]) -> str:
+def summary_table(rows: list[dict], tolerance_m: float = 1e-5) -> str:
     """Markdown: per policy, plant and noise, beside the paper's iterations and time."""
-    return markdown_table(summary_rows(rows), [
+    return markdown_table(summary_rows(rows, tolerance_m), [
         ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
         ("setpoints (mm)", "task", "s"), ("reached", "reached", "s"), ("settled", "settled", "s"),
         ("iterations to target, median [25–75 %]", "its", "s"),
+        ("information bound: settled at most in those iterations", "bound", "s"),
         ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("largest overshoot (mm)", "overshoot_mm", ".3g"), ("ms / iteration", "ms", ".3g"),
         ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
         ("paper: ms / iteration", "paper_ms", "g")])

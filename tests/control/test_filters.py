@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from deapull.control.filters import BiasKalman, ConstantVelocityKalman, ModelKalman
+from deapull.control.filters import (BiasKalman, ConstantVelocityKalman, ModelKalman, observations_for,
+                                     settle_bound)
 
 
 @pytest.fixture(scope="module")
@@ -226,3 +227,50 @@ def test_the_hold_of_a_coin_that_stands_inside_outlasts_the_estimate_s_noise(fs1
     print(default, one_std)
     assert not any(default)
     assert sum(n > 0 for n in one_std) >= 2
+
+
+def _push_then_hold(n_push: int, n_hold: int, travel_m: float = 1e-3) -> np.ndarray:
+    """The model's positions m_i: a push that accelerates to the travel, then held there."""
+    s = np.linspace(0.0, 1.0, n_push + 1)[1:]
+    return -travel_m * np.concatenate([s ** 2, np.ones(n_hold)])
+
+
+def test_the_settle_bound_is_what_averaging_a_held_coin_attains_and_a_push_does_not_beat():
+    """Monte Carlo of the efficient estimator against settle_bound's erf(w √N / (σ √2))."""
+    rng = np.random.default_rng(3)
+    sigma, w, trials = 1e-4, 1e-5, 20000
+    for m, exact in ((_push_then_hold(0, 100), True), (_push_then_hold(60, 40), False)):
+        x = 1.1 * m                                     # the plant goes 10 % further than the model says
+        obs = x + sigma * rng.standard_normal((trials, len(m)))
+        scale = obs @ m / (m @ m)                       # least squares on the unknown scale: efficient here
+        inside = np.mean(np.abs(scale * m[-1] - x[-1]) < w)
+        bound, slack = settle_bound(sigma, w, len(m)), 3 * math.sqrt(0.25 / trials)
+        if exact:                                       # all at the final position: the bound is attained
+            assert inside == pytest.approx(bound, abs=slack)
+        else:                                           # observations on the way are worth less
+            assert inside < bound - slack
+    assert settle_bound(0.0, w, 0) == 1.0
+    assert observations_for(sigma, w, 0.95) == pytest.approx(384.1, abs=0.1)
+    assert settle_bound(sigma, w, observations_for(sigma, w, 0.95)) == pytest.approx(0.95)
+
+
+def test_the_mpcs_bias_filter_claims_no_more_than_the_observations_hold():
+    """The offset-free MPC's filter, fed a push the plant makes 10 % longer, then a hold: its
+    final estimate lands inside the window no more often than the bound allows, and its own
+    std is not below the bound's δ = σ / √(N + N₀) (N₀: its gain prior's worth)."""
+    rng = np.random.default_rng(5)
+    sigma, w, trials = 1e-4, 1e-5, 400
+    m = _push_then_hold(60, 40)
+    x = 1.1 * m
+    n0 = (sigma / (0.3 * abs(m[-1]))) ** 2              # BiasKalman's gain prior std 0.3 on the travel
+    hits, stds = 0, []
+    for _ in range(trials):
+        obs = x + sigma * rng.standard_normal(len(m))
+        f = BiasKalman(sigma)
+        f.reset(obs[0])
+        for i in range(1, len(m)):
+            f.update(m[i] - m[i - 1], obs[i], held=m[i] == m[i - 1])
+        hits += abs(f.x - x[-1]) < w
+        stds.append(f.std_m)
+    assert hits / trials < settle_bound(sigma, w, len(m), n0) + 3 * math.sqrt(0.25 / trials)
+    assert min(stds) >= sigma / math.sqrt(len(m) + n0)
