@@ -44,7 +44,7 @@ solve: setup ## FEM solve of one setup: make solve SETUP=C5
 sweep: setup ## the 8 setups at FIDELITY (resolved) under mpirun -n $(NP) into $(DATA)/ (~15 min; resumes if interrupted)
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --out $(DATA)
 
-push-ramps: setup ## the ramp in 80 ms (the MPC's full push, 5 V per 1 ms step), then held 200 ms, for C1..C8 into $(DATA)/push (resumes; ~3 min a setup)
+push-ramps: setup ## the ramp in 80 ms (the MPC's full push, 5 V per 1 ms step), then held 200 ms, for C1..C8 into $(DATA)/push (resumes; 3-5 min a setup; the rim band and table that a fast push needs)
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --protocols push --out $(DATA)/push
 
 excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C3,C5,C7 into $(DATA)/excitation (resumes)
@@ -97,8 +97,8 @@ NOISE ?= 0,1e-5,1e-4,1e-3
 #: C1's -1 mm) costs 1-4 iterations. Measured (eighteenth session, docs/control.md): settled at 1e-5
 #: C1 2/10 -> 10/10, C2 10/10; at 1e-4 C1 2/10 -> 4/10, C2 7/10 -> 9/10; noise 0 10/10 at 81 / 82 (was 80).
 #: A stand-off of 2 stds (twenty-second session): under noise the MPC stops short, lets the observations
-#: average its estimate down, then creeps in. At 1e-4 it settles 57 of 60 episodes (39 of 60 without) at
-#: medians of 217-1,023 iterations; no controller settles 10/10 within ~100 there (the information bound,
+#: average its estimate down, then creeps in. At 1e-4 it settles 59 of 60 episodes (45 of 60 without) at
+#: medians of 255-856 iterations; no controller settles 10/10 within ~100 there (the information bound,
 #: docs/control.md "What noise allows"). Noise 0 and 1e-5: 10/10 at 81-88, as without it
 MPC_ARRIVAL ?= --mpc-approach-mm 0.1 --mpc-no-reach-gate --mpc-standoff 2
 #: make control's f_a (fa_push): f-coulomb on the C3..C7 ramps and on their 80 ms pushes ($(DATA)/push, make

@@ -34,6 +34,7 @@ def test_the_push_case_is_the_mpcs_full_push_then_held():
     # the coin lags the tip further on a fast push: the band reaches down to where the edge crosses
     # the rim (2.9 mm on C5), over the fidelity's 3-5 mm; the user's --set still wins
     assert sc.mesh.rim_band_m == (0.0025, 0.005) and sc.mesh.rim_band_divisions == 5
+    assert sc.table.penalty_N_m3 == 2e12, "the push presses the table harder: <= 1 um needs it twice as stiff"
     (mine,) = sweep_cases("coin_pull", ["C3"], ("mesh.rim_band_divisions=6",), "push",
                           fidelity=scenes.fidelity_overrides("coin_pull", "resolved"))
     assert scenes.load("coin_pull", setup="C3", overrides=mine.overrides).mesh.rim_band_divisions == 6
