@@ -20,13 +20,13 @@ straight into its action; these filters average it out with a model of the motio
   noise of std ``accel_std`` (m/s²), i.e. an alpha–beta filter with the optimal,
   time-varying gains.
 
-With σ = 0 both return the observation unchanged.
+With σ = 0 both return the observation unchanged. For a random-walk model error q ≪ σ the
+steady-state gain is ≈ q/σ and the estimate's std ≈ √(qσ): with q = 1 µm, ~14 µm at
+σ = 0.1 mm and ~45 µm at σ = 1 mm (against the tolerance of 10 µm).
 
 :func:`settle_bound` and :func:`observations_for` are the information bound on settling under
 noise: what no controller, this MPC included, can beat with a model that knows the plant's
-travel only up to its scale (docs/control.md, "What noise allows"). For a random-walk model error q ≪ σ the
-steady-state gain is ≈ q/σ and the estimate's std ≈ √(qσ): with q = 1 µm, ~14 µm at
-σ = 0.1 mm and ~45 µm at σ = 1 mm (against the tolerance of 10 µm).
+travel only up to its scale (docs/control.md, "What noise allows").
 """
 from __future__ import annotations
 

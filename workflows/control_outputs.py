@@ -82,7 +82,7 @@ def _save(fig, path: Path) -> None:
     plt.close(fig)
 
 
-def summary_rows(rows: list[dict], tolerance_m: float = 1e-5) -> list[dict]:
+def summary_rows(rows: list[dict], tolerance_m: float) -> list[dict]:
     """One row per (policy, plant, noise): counts, medians and the paper's numbers, and the
     information bound: the episodes that a controller can expect to settle at most in as many
     iterations as each took, knowing the plant's travel only from the observations
@@ -111,7 +111,7 @@ def summary_rows(rows: list[dict], tolerance_m: float = 1e-5) -> list[dict]:
     return out
 
 
-def summary_table(rows: list[dict], tolerance_m: float = 1e-5) -> str:
+def summary_table(rows: list[dict], tolerance_m: float) -> str:
     """Markdown: per policy, plant and noise, beside the paper's iterations and time."""
     return markdown_table(summary_rows(rows, tolerance_m), [
         ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),

@@ -309,3 +309,14 @@ def test_the_inference_engine_is_chosen_from_the_cli(base, tmp_path, trained, mo
     argv = [*base, "--policy", "mpc", "--mpc-model", str(paper), "--infer-engine", "native", "--out", str(out)]
     assert main(argv) == 2
     assert "--infer-engine native" in capsys.readouterr().err and not out.exists()
+
+
+def test_the_tables_bound_column_sums_each_reached_episodes_bound_at_the_tasks_tolerance():
+    from deapull.workflows.control_outputs import summary_rows
+    row = dict(policy="mpc", plant="surrogate:C1", noise_std_m=1e-4, setpoints_mm="-1", settled=False,
+               overshoot_m=0.0, final_abs_error_m=0.0, ms_per_iteration=1.0, training_steps=None)
+    rows = [dict(row, reached=True, iterations_to_target=100), dict(row, reached=True, iterations_to_target=384),
+            dict(row, reached=False, iterations_to_target=None)]
+    # erf(w sqrt(N) / (sigma sqrt 2)): 0.683 at N = 100 and 0.950 at N = 384 for w = 10 um, sigma = 0.1 mm
+    assert summary_rows(rows, 1e-5)[0]["bound"] == "1.6/3"
+    assert summary_rows(rows, 2e-5)[0]["bound"] == "2.0/3", "the task's tolerance, not a fixed one"
