@@ -26,8 +26,9 @@ it). The velocity is not observed (a difference of noisy positions; a policy tha
 keeps the previous observation). :meth:`CoinPushEnv.position_of` and
 :meth:`CoinPushEnv.voltage_of` read it back in SI units.
 
-**Reward** (scaled): r = −|x − x^T|/s − w (ΔV/ΔV_max)², on the true state (the simulated
-env knows it; the noise only changes what the policy sees), w = :data:`DV_WEIGHT`. An
+**Reward** (scaled): r = −|x − x^T|/s − w (ΔV/ΔV_max)² + b·[|x − x^T| < tolerance], on the
+true state (the simulated env knows it; the noise only changes what the policy sees),
+w = :data:`DV_WEIGHT`, b = ``success_bonus`` (0, the paper's reward, unless set). An
 episode ends (``terminated``) at success unless ``terminate_on_success=False`` (the
 harness keeps stepping to see whether the coin stays), and is truncated after
 ``max_steps``.
@@ -136,6 +137,8 @@ class CoinPushEnv(gym.Env):
         End the episode at the first success (the paper's episode).
     dv_weight : float
         Weight w of (ΔV/ΔV_max)² in the reward.
+    success_bonus : float
+        b, added to the reward at each step inside the window (0: the paper's reward).
     start_voltage_V : float or (float, float)
         The voltage an episode starts from: ``reset`` ramps the plant from 0 V to it at
         :data:`START_RAMP_V` per step (the coin moves as it would under that ramp; those
@@ -149,7 +152,7 @@ class CoinPushEnv(gym.Env):
     def __init__(self, plant, target_m: float = TARGET_M, tolerance_m: float = TOLERANCE_M,
                  dv_max_V: float = DV_MAX_V, v_max_V: float = V_MAX_V, max_steps: int = MAX_STEPS,
                  noise_std_m: float = 0.0, terminate_on_success: bool = True, dv_weight: float = DV_WEIGHT,
-                 start_voltage_V=0.0):
+                 start_voltage_V=0.0, success_bonus: float = 0.0):
         super().__init__()
         self.plant = plant
         self.target_m = float(target_m)
@@ -160,6 +163,7 @@ class CoinPushEnv(gym.Env):
         self.v_max_V = _positive("v_max_V", v_max_V)
         self.noise_std_m = _positive("noise_std_m", noise_std_m, allow_zero=True)
         self.dv_weight = _positive("dv_weight", dv_weight, allow_zero=True)
+        self.success_bonus = _positive("success_bonus", success_bonus, allow_zero=True)
         if int(max_steps) != max_steps or max_steps < 1:
             raise InputError(f"max_steps = {max_steps!r}: must be an integer >= 1")
         self.max_steps = int(max_steps)
@@ -228,7 +232,8 @@ class CoinPushEnv(gym.Env):
         success = bool(abs(error) < self.tolerance_m)
         if success and self.reached_step is None:
             self.reached_step = self.steps
-        reward = -abs(error) / POSITION_SCALE_M - self.dv_weight * (dV / self.dv_max_V) ** 2
+        reward = (-abs(error) / POSITION_SCALE_M - self.dv_weight * (dV / self.dv_max_V) ** 2
+                  + self.success_bonus * success)
         terminated = success and self.terminate_on_success
         truncated = not terminated and self.steps >= self.max_steps
         return self._observe(), float(reward), terminated, truncated, self._info(dV)

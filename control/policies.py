@@ -250,6 +250,8 @@ def train_sac(env, out_dir: str | Path, timesteps: int, seed: int = 0, learning_
                        wall_time_s=time.perf_counter() - start, seed=seed,
                        learning_starts=min(learning_starts, timesteps), start_voltage_V=list(env.start_voltage_V))
     meta = {"env": env_constants(env), "plant": env.plant.name, "noise_std_m": env.noise_std_m,
+            "episode_steps": env.max_steps, "terminate_on_success": env.terminate_on_success,
+            "success_bonus": env.success_bonus,
             "hidden": list(SAC_HIDDEN), "tau": SAC_TAU, "budget": asdict(budget)}
     out = Path(out_dir)
     atomic_write(out / SAC_FILE, lambda p: model.save(p), suffix=".zip")

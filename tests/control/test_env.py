@@ -93,6 +93,19 @@ def test_reward_is_scaled_distance_and_voltage_change_on_the_true_state():
     assert reward == pytest.approx(-0.25 - 0.01 * 0.5 ** 2)
 
 
+@pytest.mark.parametrize("x, inside", [(-1.004e-3, True), (-0.985e-3, False)])
+def test_the_success_bonus_is_paid_inside_the_window_only(x, inside):
+    """b = 1 is added to the reward at a step whose true x is inside ±0.01 mm, not outside;
+    0 (the paper's reward) by default."""
+    rewards = []
+    for bonus in (0.0, 1.0):
+        env = CoinPushEnv(ParkedPlant(x), noise_std_m=1e-3, success_bonus=bonus, terminate_on_success=False)
+        env.reset(seed=0)
+        rewards.append(env.step(env.action_of(0.0))[1])
+    assert rewards[0] == pytest.approx(-abs(x + 1e-3) / 1e-3)
+    assert rewards[1] - rewards[0] == pytest.approx(1.0 if inside else 0.0)
+
+
 def test_truncation_at_the_step_limit_and_termination_only_when_asked():
     env = CoinPushEnv(RatchetPlant(), max_steps=5)
     env.reset(seed=0)
@@ -118,6 +131,7 @@ def test_policies_see_no_true_state():
     ({"noise_std_m": -1e-4}, "noise_std_m"), ({"noise_std_m": float("nan")}, "noise_std_m"),
     ({"target_m": 1e-3}, "target_m"), ({"dv_max_V": 0.0}, "dv_max_V"), ({"max_steps": 0}, "max_steps"),
     ({"tolerance_m": -1.0}, "tolerance_m"), ({"start_voltage_V": (300.0, 100.0)}, "start_voltage_V"),
+    ({"success_bonus": -1.0}, "success_bonus"), ({"success_bonus": float("nan")}, "success_bonus"),
 ])
 def test_bad_env_arguments_are_refused_by_name(kwargs, word):
     with pytest.raises(InputError, match=word):

@@ -88,6 +88,7 @@ def test_sac_trains_saves_loads_and_acts_the_same(tmp_path):
     meta = json.loads((tmp_path / "sac" / "sac.json").read_text())
     assert meta["budget"]["timesteps"] == 150 and meta["hidden"] == [256, 256] and meta["tau"] == 0.005
     assert meta["env"]["dv_max_V"] == 5.0
+    assert meta["episode_steps"] == 50 and meta["terminate_on_success"] is True and meta["success_bonus"] == 0.0
     loaded = SACPolicy.load(tmp_path / "sac")
     evaluation = CoinPushEnv(RatchetPlant())
     obs, info = evaluation.reset(seed=0)
@@ -101,6 +102,25 @@ def test_sac_trains_saves_loads_and_acts_the_same(tmp_path):
         loaded.reset(CoinPushEnv(RatchetPlant(), dv_max_V=2.0))
     with pytest.raises(InputError, match="sac.zip"):
         SACPolicy.load(tmp_path)
+
+
+def test_a_sac_not_found_trains_on_the_task_it_is_judged_on(tmp_path, monkeypatch):
+    """The harness trains a missing SAC on episodes that go on past the first entry into the
+    window, with a bonus for each step inside (the return rewards staying inside, which is what
+    an episode is judged on), from random start voltages, at noise 0, for ``sac_steps``. Broken
+    once each way (the paper's episode, ended at the first entry, put back; the bonus 0): it failed."""
+    from deapull.control import harness
+    seen = {}
+    monkeypatch.setattr(harness, "train_sac", lambda env, folder, steps, **kw: seen.update(env=env, steps=steps))
+    monkeypatch.setattr(harness.Bench, "surrogate", lambda self, setup: RatchetPlant())
+    task = harness.Task(target_m=-1e-3, setpoints_m=(-1e-3,), tolerance_m=1e-5, dv_max_V=5.0, step_limit=1000,
+                        hold_steps=100)
+    harness.Bench(task, {}, {}, tmp_path / "fem", {"C1": tmp_path / "sac1"}, sac_steps=123).sac("C1")
+    env = seen["env"]
+    assert seen["steps"] == 123 and env.noise_std_m == 0.0
+    assert env.terminate_on_success is False and env.max_steps == harness.SAC_EPISODE_STEPS
+    assert env.start_voltage_V == harness.SAC_START_VOLTAGE_V
+    assert env.success_bonus == harness.SAC_SUCCESS_BONUS > 0
 
 
 def _reaches(start, targets, depth: int = 6) -> bool:
