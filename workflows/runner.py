@@ -2,8 +2,10 @@
 
 A study is a list of :class:`Case` s (a scene, a setup and the ``--set`` overrides that make
 the case). ``mpirun -n N deapull <study>`` splits the ranks into N / K groups of K ranks
-(``ranks_per_case``, default 1: at these mesh sizes one rank per case is fastest); group g
-solves cases g, g + N/K, … of those not yet done. Each finished case leaves one JSON result
+(``ranks_per_case``, default 1: at these mesh sizes one rank per case is fastest); each group,
+when it is free, takes the next case that no group has taken (:class:`Claims`: a file created
+exclusively per case), so one long case does not hold back the cases dealt behind it. Each
+finished case leaves one JSON result
 ``<out>/cases/<name>.json``, written atomically, so an interrupted study resumes where it
 stopped and a file that exists is whole. A case whose scene fails validation becomes a
 ``rejected`` row without solving; a solve that fails after its cut-backs becomes a
@@ -22,10 +24,13 @@ import hashlib
 import json
 import logging
 import math
+import os
+import shutil
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 from tqdm import tqdm
@@ -59,6 +64,51 @@ def initialise_petsc(comm) -> None:
     """Import dolfinx (and so initialise PETSc) on every rank before the groups split."""
     import dolfinx.fem.petsc  # noqa: F401  # lazy: the point of the call; importing the runner loads no dolfinx
     comm.Barrier()
+
+
+class Claims:
+    """Which group takes which case: a dynamic schedule over a study's rank groups.
+
+    Each case is taken by the first group whose root creates ``<out>/.claims-<run>/<name>``
+    (``O_CREAT | O_EXCL``: exactly one creator wins, on one machine or on a shared file
+    system, which the results in ``<out>/cases`` already need). ``<run>`` is drawn on rank 0
+    for this call of the runner, so a claim left by a run that was killed never blocks a
+    later one, and two studies run into one folder do not see each other's claims (each
+    solves what was missing when it started, as before). Rank 0 removes the folder when the
+    study ends; a ``.claims-*`` folder left by a killed run may be deleted.
+    """
+
+    def __init__(self, out_dir: Path, comm):
+        token = comm.bcast(uuid.uuid4().hex[:12] if comm.rank == 0 else None, root=0)
+        self.folder = Path(out_dir) / f".claims-{token}"
+        if comm.rank == 0:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        comm.Barrier()
+
+    def take(self, name: str) -> bool:
+        """Claim case ``name`` for the caller's group; False when another group has it."""
+        try:
+            os.close(os.open(self.folder / name, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            return False
+        return True
+
+    def cases(self, todo: list, group) -> Iterator:
+        """Yield, on every rank of ``group``, the cases its root claims, in ``todo``'s order,
+        until none is left (the root claims; the group follows by broadcast)."""
+        i = 0
+        while True:
+            if group.rank == 0:
+                while i < len(todo) and not self.take(todo[i].name):
+                    i += 1
+            i = group.bcast(i, root=0)
+            if i >= len(todo):
+                return
+            yield todo[i]
+            i += 1
+
+    def remove(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
 
 
 # --- cases and their results -------------------------------------------------------------
@@ -279,8 +329,9 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
         if stale:
             log.info("%s: solving again %s: stored for another resolved scene (a changed scene file or default)",
                      desc, ", ".join(stale))
+    claims = Claims(out_dir, comm)
     bar = tqdm(total=len(cases), initial=len(cases) - len(todo), desc=desc, unit="case", disable=comm.rank != 0)
-    for case in todo[color::n_groups]:
+    for case in claims.cases(todo, group):
         result = solve(case, resolved[case.name], out_dir, group, comm.rank == 0)
         if group.rank == 0:
             write_json(result_path(out_dir, case.name), {**base_result(case, resolved[case.name]), **result})
@@ -288,6 +339,8 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
             bar.n = sum(done(c) for c in cases)
             bar.refresh()
     idle_barrier(comm)
+    if comm.rank == 0:
+        claims.remove()
     bar.n = len(cases)
     bar.close()
     group.Free()

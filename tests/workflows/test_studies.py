@@ -234,6 +234,45 @@ def test_a_case_whose_output_is_gone_is_solved_again(tmp_path):
     assert solved == ["good", "bad", "good"]                   # the ok case again, not the failed one
 
 
+GATED = """
+import json, sys, time
+from pathlib import Path
+from mpi4py import MPI
+from deapull.workflows.runner import Case, result_path, run_cases
+out = Path(sys.argv[1])
+names = ["gate", "a", "b", "c", "d"]
+
+def solve(case, scene, out_dir, group, progress):
+    rank = MPI.COMM_WORLD.rank
+    if case.name == "gate":            # a long case: it ends once every other case is stored
+        end = time.monotonic() + 20
+        while not all(result_path(out_dir, n).is_file() for n in names[1:]):
+            if time.monotonic() > end:
+                return {{"status": "failed", "reason": "cases dealt behind the long one", "steps": 0, "rank": rank}}
+            time.sleep(0.05)
+    return {{"status": "ok", "steps": 1, "rank": rank}}
+
+rows = run_cases([Case(n, "coin_pull", "C3", {tiny!r}, n) for n in names], out, MPI.COMM_WORLD, solve=solve)
+if MPI.COMM_WORLD.rank == 0:
+    print("ROWS" + json.dumps({{r["case"]: [r["status"], r["rank"]] for r in rows}}))
+"""
+
+
+def test_a_free_group_takes_the_next_case_so_a_long_case_holds_back_nothing(tmp_path):
+    """Under ``mpirun -n 2`` the groups take cases as they become free: while one group is in
+    a long case (here one that ends only when the other four are stored), the other group
+    runs the other four. Dealt round-robin, the long case's group would hold two of them and
+    wait for itself (broken once with ``todo[color::n_groups]``: the gate failed after 20 s).
+    The run's claims folder is removed at the end."""
+    proc = mpirun(2, "-c", GATED.format(tiny=TINY), str(tmp_path), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = json.loads(proc.stdout.split("ROWS")[1].splitlines()[0])
+    assert rows["gate"][0] == "ok", rows
+    others = {rows[n][1] for n in "abcd"}
+    assert all(rows[n][0] == "ok" for n in "abcd") and others == {1 - rows["gate"][1]}, rows
+    assert not list(tmp_path.glob(".claims-*"))
+
+
 def test_a_crashed_case_is_solved_again_on_resume_a_failed_one_is_not(tmp_path):
     """A crash (``error`` row: a bug, not the case's physics) does not count as done, so a
     resumed study runs it again once the bug is fixed; a failed solve (PETSc's reason) stays
