@@ -168,6 +168,8 @@ def run_stats(cols: dict) -> dict:
     newton = np.asarray(cols["newton_iterations"])
     dt = np.asarray(cols["dt"])[1:]
     tip = np.asarray(cols["tip_uy"]) - cols["tip_uy"][0]
+    touching = np.asarray(cols["n_contact"])
+    touching = touching[touching > 0]
     return {
         "steps": n,
         "newton_iterations": int(newton.sum()),
@@ -176,6 +178,9 @@ def run_stats(cols: dict) -> dict:
         "min_dt_s": float(dt.min()) if dt.size else math.nan,
         "max_dt_s": float(dt.max()) if dt.size else math.nan,
         "max_penetration_mm": float(np.max(cols["penetration_m"])) * 1e3,
+        # the fewest DEA-obstacle contact points of a step that touches (NaN: it never touches)
+        "min_contact_points": float(touching.min()) if touching.size else math.nan,
+        "max_table_penetration_um": float(np.max(cols["table_penetration_m"])) * 1e6,
         "max_force_residual_N": float(np.max(cols["force_balance_residual_N"])),
         "travel_mm": float(np.max(np.abs(cols["x"]))) * 1e3,
         "solve_s": float(np.sum(cols["wall_time_s"])),

@@ -155,13 +155,14 @@ def finish_row(row: dict) -> dict:
 
 CSV_COLUMNS = ("case", "description", "scene", "expected", "status", "converged", "as_expected", "steps",
                "newton_iterations", "max_newton_per_step", "cutbacks", "min_dt_s", "max_dt_s", "max_penetration_mm",
-               "max_force_residual_N", "travel_mm", "max_Fy_mN", "max_tip_deflection_mm", "last_V", "solve_s", "wall_s",
+               "min_contact_points", "max_table_penetration_um", "max_force_residual_N", "travel_mm", "max_Fy_mN", "max_tip_deflection_mm", "last_V", "solve_s", "wall_s",
                "reason", "fail_t_s", "fail_V", "instability_V", "tip_log_slope_max", "dV_collapse", "dofs",
                "outcome", "protocol", "overrides")
 MD_COLUMNS = (("case", "case", ""), ("converged", "converged", ""), ("as expected", "as_expected", ""),
               ("steps", "steps", "d"), ("Newton its", "newton_iterations", "d"),
               ("max its/step", "max_newton_per_step", "d"), ("cut-backs", "cutbacks", "d"),
               ("min dt s", "min_dt_s", ".2g"), ("max pen. mm", "max_penetration_mm", ".3g"),
+              ("fewest contact pts", "min_contact_points", ".0f"), ("max table pen. µm", "max_table_penetration_um", ".2f"),
               ("max coin residual N", "max_force_residual_N", ".2g"), ("travel mm", "travel_mm", ".3f"),
               ("wall s", "wall_s", ".1f"), ("outcome", "outcome", ""))
 

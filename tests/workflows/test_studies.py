@@ -234,6 +234,24 @@ def test_a_case_whose_output_is_gone_is_solved_again(tmp_path):
     assert solved == ["good", "bad", "good"]                   # the ok case again, not the failed one
 
 
+def test_a_row_counts_the_fewest_contact_points_of_the_steps_that_touch():
+    """``run_stats``' contact columns: the fewest contact points over the steps whose DEA
+    touches the obstacle (steps before the touch, with none, do not count; NaN when it never
+    touches: the free pull-in), and the table's deepest penetration in µm. A stiff penalty
+    concentrates the patch onto a few points (penalty-x100 at resolved: 3), which a row must
+    show. Broken once with the zeros counted: it failed (0 != 3)."""
+    n = 5
+    cols = {"t": np.arange(n) * 0.1, "newton_iterations": np.full(n, 3), "dt": np.full(n, 0.1),
+            **{f"tip_u{k}": np.zeros(n) for k in "xyz"}, "cutbacks": np.zeros(n), "penetration_m": np.zeros(n),
+            "force_balance_residual_N": np.zeros(n), "x": np.zeros(n), "wall_time_s": np.ones(n),
+            "Fy": np.zeros(n), "V": np.linspace(0, 400, n), "n_contact": np.array([0, 0, 24, 3, 9]),
+            "table_penetration_m": np.array([0, 1e-7, 4e-7, 3e-7, 2e-7])}
+    row = runner.run_stats(cols)
+    assert row["min_contact_points"] == 3
+    assert row["max_table_penetration_um"] == pytest.approx(0.4)
+    assert math.isnan(runner.run_stats({**cols, "n_contact": np.zeros(n)})["min_contact_points"])
+
+
 GATED = """
 import json, sys, time
 from pathlib import Path
