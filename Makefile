@@ -64,7 +64,7 @@ fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule,
 fidelity: setup ## error against run time ladder on coin_pull C3 (issue 4)
 	$(MPIRUN) $(DEAPULL) fidelity --scene coin_pull --setup C3 --out $(OUT)/fidelity
 
-stability: setup ## stiff and extreme cases (issue 4) at FIDELITY (resolved; ~6x the fast preview); FIDELITY= the files as written; resumes
+stability: setup ## stiff and extreme cases (issue 4) at FIDELITY (resolved: ~1.5 h on 2 cores, 170 min of case time); FIDELITY= the files as written; resumes
 	$(MPIRUN) $(DEAPULL) stability $(FIDELITY_ARG) --out $(OUT)/stability
 
 bench-surrogate: setup ## 1 s rollout time of each surrogate model (needs $(DATA) from make sweep)
