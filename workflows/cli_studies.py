@@ -27,8 +27,8 @@ def cmd_fidelity(args) -> int:
         def surrogate_rows(setup_name):
             return ladder.ladder_rows(models, args.surrogate_data, setup_name, args.out)
         extra = surrogate_rows
-    rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, overrides_of(args),
-                      names(args.only), args.ranks_per_case, extra_rows=extra)
+    rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, args.overrides,
+                      names(args.only), args.ranks_per_case, extra_rows=extra, fidelity=args.fidelity)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print(fidelity_table(rows))

@@ -129,8 +129,12 @@ def rung_overrides(rung: Rung, base, shipped) -> tuple[str, ...]:
     return tuple(out)
 
 
-def ladder_cases(scene_name: str, setup, rungs: str = "quick", overrides=(), only=None) -> list[Case]:
-    """The ladder's cases; ``only`` picks rungs by name (the reference is always added)."""
+def ladder_cases(scene_name: str, setup, rungs: str = "quick", overrides=(), only=None,
+                 fidelity: str | None = None) -> list[Case]:
+    """The ladder's cases; ``only`` picks rungs by name (the reference is always added).
+    ``fidelity`` names one of the scene's fidelities (``resolved``), applied to every rung before
+    ``overrides``: each rung then refines or coarsens that fidelity's mesh and steps."""
+    overrides = (*scenes.fidelity_overrides(scene_name, fidelity), *overrides)
     if rungs not in RUNG_SETS:
         raise InputError(f"--rungs {rungs!r}: expected one of {', '.join(RUNG_SETS)}")
     available = [r.name for r in LADDER if not (r.shipped_dt and rungs == "full")]
@@ -341,21 +345,21 @@ def report(rows, out_dir: Path, header: str = "") -> list[dict]:
 
 
 def run_ladder(scene_name: str, setup, out_dir, comm, rungs: str = "quick", overrides=(), only=None,
-               ranks_per_case: int = 1, extra_rows=None) -> list[dict] | None:
+               ranks_per_case: int = 1, extra_rows=None, fidelity: str | None = None) -> list[dict] | None:
     """Run (or resume) the ladder and write its report; rank 0 returns the rows, others None.
 
     ``extra_rows``: a callable run on rank 0 after the FEM rungs, returning more rows with
     a ``dataset`` of (t, x, Fy) to compare with the reference (the surrogates' rows,
     :func:`deapull.workflows.ladder.ladder_rows`)."""
     out_dir = Path(out_dir)
-    cases = ladder_cases(scene_name, setup, rungs, overrides, only)
+    cases = ladder_cases(scene_name, setup, rungs, overrides, only, fidelity)
     results = run_cases(cases, out_dir, comm, ranks_per_case, desc="fidelity")
     if comm.rank != 0:
         return None
     if extra_rows is not None:
         results = results + extra_rows(cases[0].setup)
     setup_name = cases[0].setup or "-"
-    header = (f"Scene `{scene_name}`, setup `{setup_name}`, rungs `{rungs}`"
+    header = (f"Scene `{scene_name}`, fidelity `{fidelity or 'as written'}`, setup `{setup_name}`, rungs `{rungs}`"
               f"{f' (base step end/{STUDY_STEPS}; the shipped step in rung {SHIPPED})' if rungs == 'quick' else ''}, "
               f"{comm.size} MPI rank(s), {ranks_per_case} per rung; extra --set: "
               f"{' '.join(overrides) or 'none'}. {provenance.summary()}.")

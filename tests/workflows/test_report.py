@@ -152,6 +152,9 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     assert "img/control_position_surrogate_C2_noise0.001.png" in page.imgs
     assert "img/control_bands.png" in page.imgs and "img/error_time.png" in page.imgs
     assert re.search(r'<tr id="stab-baseline">', html) and re.search(r'<tr id="fid-ref">', html)
+    # the ladder says which fidelity it refined (make fidelity: resolved, the datasets')
+    fid = (out / "report.md").read_text().split('<a id="fidelity"></a>')[1].split('<a id="stability"></a>')[0]
+    assert "fidelity `resolved`" in fid and "Shipped default (default, hex Q2): error 1.50 %" in fid
     assert "mpc.pytorch" in html
     # the FEM closed loop: counted from its CSV (one of the two fake episodes settled)
     fem = claims["The MPC on the FEM plant (noise 0.1 mm)"]
@@ -236,6 +239,10 @@ def _fake_studies(inputs: report.Inputs) -> None:
                     mae_x_mm=0.01, error_pct=1.5, is_reference=False, is_default=True)],
               ("case", "kind", "status", "elements", "dofs", "steps", "wall_s", "mae_x_mm", "error_pct",
                "is_reference", "is_default"))
+    (inputs.fidelity / "fidelity.md").write_text(
+        "# FEM fidelity ladder\n\nScene `coin_pull`, fidelity `resolved`, setup `C3`, rungs `quick`.\n\n"
+        "Reference rung: `ref` (900 dofs).\n\nShipped default (default, hex Q2): error 1.50 %.\n\n"
+        "| case |\n|---|\n| ref |\n")
     _png(inputs.fidelity / "fidelity_pareto.png")
     inputs.stability.mkdir(parents=True)
     (inputs.stability / "stability.md").write_text(

@@ -125,7 +125,7 @@ def test_fidelity_ladder_writes_csv_markdown_and_pareto_plot(tmp_path):
     assert 0 < default.mae_x_mm < default.travel_mm and default.travel_mm > MOVES_MM
     assert (tmp_path / "fidelity_pareto.png").stat().st_size > 10_000
     md = (tmp_path / "fidelity.md").read_text()
-    assert "Shipped default" in md and "| hex-Q2-mixed-coarse |" in md
+    assert "Shipped default" in md and "| hex-Q2-mixed-coarse |" in md and "fidelity `as written`" in md
     assert rows[1]["newton_iterations"] > 0
 
 
@@ -332,3 +332,30 @@ def test_stability_at_a_named_fidelity_applies_it_to_the_cases_whose_scene_defin
     assert not any(o.startswith("mesh.tip_zone") for o in plain["baseline"].overrides)
     with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: resolved"):
         stability.stability_cases(fidelity="finest")
+
+
+def test_the_ladder_at_a_named_fidelity_refines_that_fidelity_in_every_rung():
+    """``deapull fidelity --fidelity resolved`` (no solve here): every rung is the resolved scene
+    changed in its own knobs, so the reference is resolved's mesh at level + 1 and the coarse
+    rung halves resolved's 8 graded elements, not the file's 16; the user's --set still wins;
+    an unknown fidelity is refused naming the allowed ones. Broken once: with the fidelity not
+    applied in ladder_cases (as run_ladder had before it took the name), the rungs were the fast
+    preview's and this failed."""
+    from deapull import scene as scenes
+    from deapull.errors import InputError
+    resolved = scenes.load("coin_pull", setup="C3", overrides=scenes.fidelity_overrides("coin_pull", "resolved"))
+    cases = {c.name: c for c in fidelity.ladder_cases("coin_pull", "C3", "quick", ("coin.mu_b=0.3",),
+                                                      fidelity="resolved")}
+    assert len(cases) == len(fidelity.LADDER)
+
+    def scene(name):
+        return scenes.load("coin_pull", setup="C3", overrides=cases[name].overrides)
+    ref, coarse, shipped = scene(fidelity.REFERENCE), scene("hex-Q2-mixed-coarse"), scene(fidelity.SHIPPED)
+    assert ref.mesh.level == resolved.mesh.level + 1 and ref.mesh.tip_zone_m == resolved.mesh.tip_zone_m
+    assert ref.contact.penalty_N_m3 == resolved.contact.penalty_N_m3 and ref.time.dt_max_s == 0.005
+    assert coarse.mesh.n_length == resolved.mesh.n_length // 2 == 4
+    assert shipped.time.dt_max_s == resolved.time.dt_max_s and shipped.coin.mu_b == 0.3
+    plain = {c.name: c for c in fidelity.ladder_cases("coin_pull", "C3", "quick", only=["hex-Q2-mixed-coarse"])}
+    assert scenes.load("coin_pull", setup="C3", overrides=plain["hex-Q2-mixed-coarse"].overrides).mesh.n_length == 8
+    with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: resolved"):
+        fidelity.ladder_cases("coin_pull", "C3", fidelity="finest")

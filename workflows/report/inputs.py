@@ -89,7 +89,7 @@ STEPS = (
          "--fields-every 10", "the displacement fields of one run (pictures and animation)", "fields"),
     Step("bench-fem", "python bench/bench_fem.py --out {bench_fem} --np 2",
          "the FEM's wall time, travel error and sweep time beside ABAQUS (docs/fem_accuracy.md)", "bench_fem"),
-    Step("fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --out {fidelity}",
+    Step("fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --fidelity resolved --out {fidelity}",
          "the error-against-run-time ladder", "fidelity"),
     Step("stability", "mpirun -n 2 deapull stability --fidelity resolved --out {stability}",
          "the stiff and extreme cases", "stability"),

@@ -457,6 +457,11 @@ def section_fidelity(rep: Report) -> Section:
     if not rep.found(csv_path, sec, "the fidelity ladder", "fidelity"):
         return sec
     rows = read_csv(csv_path)
+    md = inputs.fidelity / "fidelity.md"
+    if md.is_file():   # what the ladder refined (its scene and fidelity), its reference and the verdict
+        for line in md.read_text().splitlines():
+            if line.startswith(("Scene `", "Reference rung:", "Shipped default")):
+                sec.p(line)
     png = inputs.fidelity / "fidelity_pareto.png"
     if png.is_file():
         sec.img(rep.copy_image(png, "fidelity_pareto.png"), "Error against wall time: every rung, Pareto fronts "
