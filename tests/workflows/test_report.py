@@ -155,6 +155,8 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     # the ladder says which fidelity it refined (make fidelity: resolved, the datasets')
     fid = (out / "report.md").read_text().split('<a id="fidelity"></a>')[1].split('<a id="stability"></a>')[0]
     assert "fidelity `resolved`" in fid and "Shipped default (default, hex Q2): error 1.50 %" in fid
+    # its hint to add a surrogate names that fidelity, so the rungs are reused, not re-solved as written
+    assert "--setup C3 --fidelity resolved --out" in fid
     assert "mpc.pytorch" in html
     # the FEM closed loop: counted from its CSV (one of the two fake episodes settled)
     fem = claims["The MPC on the FEM plant (noise 0.1 mm)"]

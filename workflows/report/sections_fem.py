@@ -458,10 +458,14 @@ def section_fidelity(rep: Report) -> Section:
         return sec
     rows = read_csv(csv_path)
     md = inputs.fidelity / "fidelity.md"
+    fidelity_arg = ""   # the ladder's own fidelity, so that the hint below reuses its rungs
     if md.is_file():   # what the ladder refined (its scene and fidelity), its reference and the verdict
         for line in md.read_text().splitlines():
             if line.startswith(("Scene `", "Reference rung:", "Shipped default")):
                 sec.p(line)
+            named = re.match(r"Scene `[^`]*`, fidelity `([^`]*)`", line)
+            if named and named.group(1) != "as written":
+                fidelity_arg = f" --fidelity {named.group(1)}"
     png = inputs.fidelity / "fidelity_pareto.png"
     if png.is_file():
         sec.img(rep.copy_image(png, "fidelity_pareto.png"), "Error against wall time: every rung, Pareto fronts "
@@ -476,8 +480,8 @@ def section_fidelity(rep: Report) -> Section:
     sec.table(Table([h for _, h, _ in keys], table_rows, [f"fid-{r.get('case', i)}" for i, r in enumerate(rows)],
                     caption="The ladder (reference: the finest affordable rung)"))
     if not any(r.get("kind", "") not in ("", "fem") for r in rows):
-        sec.p("No surrogate on this ladder yet: `mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --out "
-              f"{inputs.fidelity} --surrogate {inputs.experiments}/set1/f-coulomb` adds one (the FEM rungs are "
+        sec.p(f"No surrogate on this ladder yet: `mpirun -n 2 deapull fidelity --scene coin_pull --setup C3{fidelity_arg} "
+              f"--out {inputs.fidelity} --surrogate {inputs.experiments}/set1/f-coulomb` adds one (the FEM rungs are "
               "reused).")
     default = next((r for r in rows if r.get("is_default") in ("True", "true", "1")), None)
     if default is not None:
