@@ -61,7 +61,7 @@ FEM_STUDY ?= reference,patch-rule,shipped
 fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule, the shipped default against it (FEM_STUDY=all: every study); resumes; ~1.5 h on one core
 	$(DEAPULL) fem-study --study $(FEM_STUDY) --out $(OUT)/fem_study
 
-fidelity: setup ## error against run time ladder on coin_pull C3 at FIDELITY (resolved: every rung refines or coarsens it); FIDELITY= the file as written (~12 min); resumes
+fidelity: setup ## error against run time ladder on coin_pull C3 at FIDELITY (resolved: every rung refines or coarsens it; ~1.5-2 h on 2 cores); FIDELITY= the file as written (~12 min); resumes
 	$(MPIRUN) $(DEAPULL) fidelity --scene coin_pull --setup C3 $(FIDELITY_ARG) --out $(OUT)/fidelity
 
 stability: setup ## stiff and extreme cases (issue 4) at FIDELITY (resolved: ~1.5 h on 2 cores, 170 min of case time); FIDELITY= the files as written; resumes
