@@ -193,6 +193,13 @@ def trajectory_errors(ref: dict, run: dict) -> dict:
             "error_pct": 100 * max(rels) if rels else math.nan}
 
 
+def _ranks(path: Path) -> int | None:
+    """The MPI ranks a rung's dataset was solved on (``mpi_ranks``; a result stored before the
+    runner recorded ``ranks`` has it only there)."""
+    ranks = dataset.read(path, variables=("t",)).attrs.get("mpi_ranks")
+    return None if ranks is None else int(ranks)
+
+
 def _columns(path: Path) -> dict:
     """t, x and Fy of a rung's dataset, or of a surrogate's rollout file in the same contract
     (a black box predicts no Fy: NaN then, and its error is the x part)."""
@@ -225,6 +232,8 @@ def add_errors(rows, out_dir: Path) -> list[dict]:
     out = []
     for r in rows:
         r = dict(r)
+        if r["status"] == "ok" and r.get("kind", "fem") == "fem" and r.get("ranks") is None:
+            r["ranks"] = _ranks(Path(out_dir) / r["dataset"])
         if ref is not None and r["status"] == "ok":
             r.update(trajectory_errors(ref, _columns(Path(out_dir) / r["dataset"])))
         out.append(r)
@@ -242,16 +251,22 @@ def add_errors(rows, out_dir: Path) -> list[dict]:
 # --- outputs ---------------------------------------------------------------------------
 
 CSV_COLUMNS = ("case", "kind", "status", "elements", "cell", "order", "formulation", "poisson_ratio",
-               "resolution", "dt_max_s", "dofs", "steps", "newton_iterations", "cutbacks", "solve_s", "wall_s",
+               "resolution", "dt_max_s", "dofs", "ranks", "steps", "newton_iterations", "cutbacks", "solve_s", "wall_s",
                "mae_x_mm", "mae_Fy_mN", "mae_x_pct", "mae_Fy_pct", "error_pct", "travel_mm", "travel_err_mm",
                "travel_err_pct", "is_reference", "is_default", "on_pareto", "on_pareto_travel", "on_pareto_same_nu", "reason",
                "protocol", "overrides")
 MD_COLUMNS = (("rung", "case", ""), ("elements", "elements", ""), ("ν", "poisson_ratio", "g"),
-              ("dt_max s", "dt_max_s", ".3g"), ("dofs", "dofs", "d"), ("steps", "steps", "d"),
+              ("dt_max s", "dt_max_s", ".3g"), ("dofs", "dofs", "d"), ("ranks", "ranks", "d"), ("steps", "steps", "d"),
               ("Newton its", "newton_iterations", "d"), ("solve s", "solve_s", "s"), ("wall s", "wall_s", "s"),
               ("MAE x mm", "mae_x_mm", ".3g"), ("MAE Fy mN", "mae_Fy_mN", ".3g"), ("travel mm", "travel_mm", ".3f"),
               ("travel err %", "travel_err_pct", ".2f"), ("error %", "error_pct", ".2f"),
               ("Pareto", "on_pareto", ""), ("Pareto, same ν", "on_pareto_same_nu", ""), ("status", "status", ""))
+
+
+def _label(row) -> str:
+    """A rung's name, with its ranks when it ran on more than one (its time is then shorter)."""
+    ranks = row.get("ranks")
+    return row["case"] + (f" ({int(ranks)} ranks)" if ranks is not None and int(ranks) > 1 else "")
 
 
 def plot_pareto(rows, path: Path) -> None:
@@ -271,7 +286,7 @@ def plot_pareto(rows, path: Path) -> None:
                 ax.scatter([r[TIME_KEY] for r in sel], [r[key] for r in sel], marker=marker,
                            color="C0" if kind == "fem" else "C2", label=f"{kind} rows", zorder=2)
         for r in pts:
-            ax.annotate(r["case"], (r[TIME_KEY], r[key]), fontsize=7, xytext=(4, 3), textcoords="offset points")
+            ax.annotate(_label(r), (r[TIME_KEY], r[key]), fontsize=7, xytext=(4, 3), textcoords="offset points")
         front = sorted((r for r in pts if r.get(front_key)), key=lambda r: r[TIME_KEY])
         if front:
             ax.step([r[TIME_KEY] for r in front], [r[key] for r in front], where="post", color="C1", lw=1.5,
@@ -283,10 +298,10 @@ def plot_pareto(rows, path: Path) -> None:
             ax.scatter([default[0][TIME_KEY]], [default[0][key]], marker="*", s=300, color="C3", zorder=4,
                        label="shipped default")
         if ref is not None:
-            ax.axvline(ref[TIME_KEY], color="grey", ls="--", lw=1, label=f"reference ({ref['case']})")
+            ax.axvline(ref[TIME_KEY], color="grey", ls="--", lw=1, label=f"reference ({_label(ref)})")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel("run time: time stepping incl. placement, one core [s]")
+        ax.set_xlabel("run time: time stepping incl. placement [s], one core unless the label gives ranks")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
     # one legend under both panels: inside an axes it hid the points in its corner
@@ -311,19 +326,40 @@ def default_verdict(rows) -> str:
               and r.get("kind", "fem") == "fem" and r[TIME_KEY] <= d[TIME_KEY]
               and r.get("error_pct", math.inf) < d["error_pct"]]
     where = "on the Pareto front" if d.get("on_pareto") else f"not on the Pareto front (beaten by {', '.join(beaten)})"
+    on_ranks = f" on {int(d['ranks'])} ranks" if d.get("ranks") is not None and int(d["ranks"]) > 1 else ""
     where += (f"; among the rungs with the reference's ν = {d['poisson_ratio']:g} it is "
               f"{'on' if d.get('on_pareto_same_nu') else 'not on'} the front")
     return (f"Shipped default ({d['case']}, {d['elements']}): error {d['error_pct']:.2f} %, coin-travel error "
-            f"{fmt(d.get('travel_err_pct'), '.2f')} %, solve {d[TIME_KEY]:.1f} s (wall {d['wall_s']:.1f} s), "
+            f"{fmt(d.get('travel_err_pct'), '.2f')} %, solve {d[TIME_KEY]:.1f} s{on_ranks} (wall {d['wall_s']:.1f} s), "
             f"{d['dofs']} dofs — {where}.")
+
+
+def ranks_line(rows) -> str:
+    """How many MPI ranks shared each FEM rung's mesh. Solve times on more ranks are shorter than
+    one core would give, so rungs that differ are named (the reference often runs on more)."""
+    counts = {}
+    for r in rows:
+        if r.get("status") == "ok" and r.get("kind", "fem") == "fem" and r.get("ranks") is not None:
+            counts.setdefault(int(r["ranks"]), []).append(r["case"])
+    if not counts:
+        return "Ranks per rung: not recorded."
+    usual = max(counts, key=lambda n: (len(counts[n]), -n))
+    text = f"Ranks per rung: {usual}"
+    others = [f"{', '.join(counts[n])} on {n}" for n in sorted(counts) if n != usual]
+    if others:
+        n_other = sum(len(counts[n]) for n in counts if n != usual)
+        text += (f", except {'; '.join(others)}: the solve time{'s' if n_other > 1 else ''} of "
+                 f"{'those rungs' if n_other > 1 else 'that rung'} {'are' if n_other > 1 else 'is'} not on the "
+                 f"others' {'one-core' if usual == 1 else f'{usual}-rank'} scale")
+    return text + "."
 
 
 def write_markdown(rows, path: Path, header: str) -> None:
     ref = next((r for r in rows if r.get("is_reference")), {})
     text = "\n".join([
         "# FEM fidelity ladder", "", header, "", f"Reference rung: `{ref.get('case', REFERENCE)}` "
-        f"({fmt(ref.get('dofs'), 'd')} dofs, solve {fmt(ref.get(TIME_KEY), '.1f')} s, travel "
-        f"{fmt(ref.get('travel_mm'), '.3f')} mm, status {ref.get('status', 'missing')}).", "",
+        f"({fmt(ref.get('dofs'), 'd')} dofs, {fmt(ref.get('ranks'), 'd')} rank(s), solve {fmt(ref.get(TIME_KEY), '.1f')} s, travel "
+        f"{fmt(ref.get('travel_mm'), '.3f')} mm, status {ref.get('status', 'missing')}).", "", ranks_line(rows), "",
         default_verdict(rows), "", markdown_table(rows, MD_COLUMNS), "",
         "error % = max(MAE x / reference travel, MAE Fy / reference max Fy); Pareto = no rung with a shorter "
         "solve time has a smaller error. solve s = time stepping incl. the initial placement; wall s adds "
@@ -361,7 +397,7 @@ def run_ladder(scene_name: str, setup, out_dir, comm, rungs: str = "quick", over
     setup_name = cases[0].setup or "-"
     header = (f"Scene `{scene_name}`, fidelity `{fidelity or 'as written'}`, setup `{setup_name}`, rungs `{rungs}`"
               f"{f' (base step end/{STUDY_STEPS}; the shipped step in rung {SHIPPED})' if rungs == 'quick' else ''}, "
-              f"{comm.size} MPI rank(s), {ranks_per_case} per rung; extra --set: "
+              f"{comm.size} MPI rank(s) in this call, {ranks_per_case} per rung; extra --set: "
               f"{' '.join(overrides) or 'none'}. {provenance.summary()}.")
     return report(results, out_dir, header)
 
@@ -375,5 +411,6 @@ def summary_table(rows) -> str:
                      f"{fmt(r.get('error_pct'), '.2f'):>8s} {fmt(r.get('travel_err_pct'), '.2f'):>12s} "
                      f"{'*' if r.get('on_pareto') else ' ':>6s}  {r['status']}{' (reference)' if r.get('is_reference') else ''}")
     lines.append(default_verdict(rows))
+    lines.append(ranks_line(rows))
     return "\n".join(lines)
 

@@ -248,14 +248,16 @@ def solve_case(case: Case, scene, out_dir: Path, comm, progress: bool, run_dir: 
             _write_partial(steps, scene, case_dir(out_dir, case.name) / "partial.nc")
         stats = run_stats(as_arrays(steps)) if steps else {"steps": 0}
         return {"status": "failed", "reason": err.reason, "fail_t_s": err.t, "fail_V": err.voltage,
-                "last_good_step": err.last_good_step, "wall_s": wall, **stats}
+                "last_good_step": err.last_good_step, "wall_s": wall, "ranks": comm.size, **stats}
     except Exception as err:   # a crash of one case is that case's row, not the study's end
         log.exception("%s: crashed", case.name)
         return {"status": "error", "reason": f"{type(err).__name__}: {err}", "steps": 0,
-                "wall_s": time.perf_counter() - start}
+                "wall_s": time.perf_counter() - start, "ranks": comm.size}
     wall = time.perf_counter() - start
     run = dataset.read(path, variables=tuple(dataset.VARIABLES))
+    # the ranks that shared the mesh: the times of rungs solved on different counts are not on one scale
     return {"status": "ok", "reason": "", "wall_s": wall, "dofs": int(run.attrs["mesh_dofs"]),
+            "ranks": int(run.attrs.get("mpi_ranks", comm.size)),
             "dataset": str(path.relative_to(out_dir)), **run_stats(run.columns)}
 
 

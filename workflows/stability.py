@@ -156,7 +156,7 @@ def finish_row(row: dict) -> dict:
 CSV_COLUMNS = ("case", "description", "scene", "expected", "status", "converged", "as_expected", "steps",
                "newton_iterations", "max_newton_per_step", "cutbacks", "min_dt_s", "max_dt_s", "max_penetration_mm",
                "min_contact_points", "max_table_penetration_um", "max_force_residual_N", "travel_mm", "max_Fy_mN",
-               "max_tip_deflection_mm", "last_V", "solve_s", "wall_s",
+               "max_tip_deflection_mm", "last_V", "solve_s", "wall_s", "ranks",
                "reason", "fail_t_s", "fail_V", "instability_V", "tip_log_slope_max", "dV_collapse", "dofs",
                "outcome", "protocol", "overrides")
 MD_COLUMNS = (("case", "case", ""), ("converged", "converged", ""), ("as expected", "as_expected", ""),

@@ -1,5 +1,6 @@
 """``deapull report``: the page builds from partial tiny outputs and names what is missing,
 its images are real, every link points at a row, and a real browser loads it cleanly."""
+import csv
 import json
 import re
 import shutil
@@ -157,6 +158,12 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     assert "fidelity `resolved`" in fid and "Shipped default (default, hex Q2): error 1.50 %" in fid
     # its hint to add a surrogate names that fidelity, so the rungs are reused, not re-solved as written
     assert "--setup C3 --fidelity resolved --out" in fid
+    # and which rung ran on more ranks than the others (its time is shorter than one core's)
+    assert "Ranks per rung: 1, except ref on 2" in fid
+    points = list(csv.DictReader(open(out / "tables" / "error-time-points.csv")))
+    assert [p["label"] for p in points if p["group"] == "FEM ladder"] == ["ref (2 ranks)"]
+    assert re.findall(r"<td>(.*?)</td>", re.search(r'<tr id="fid-ref">(.*?)</tr>', html).group(1))[:5] == [
+        "ref", "fem", "hex Q2", "900", "2"]
     assert "mpc.pytorch" in html
     # the FEM closed loop: counted from its CSV (one of the two fake episodes settled)
     fem = claims["The MPC on the FEM plant (noise 0.1 mm)"]
@@ -235,15 +242,16 @@ def _png(path: Path) -> None:
 def _fake_studies(inputs: report.Inputs) -> None:
     """Tiny outputs of every study, in the formats their commands write."""
     write_csv(inputs.fidelity / "fidelity.csv",
-              [dict(case="ref", kind="fem", status="ok", elements="hex Q2", dofs=900, steps=50, wall_s=9.0,
+              [dict(case="ref", kind="fem", status="ok", elements="hex Q2", dofs=900, ranks=2, steps=50, wall_s=9.0,
                     mae_x_mm=0.0, error_pct=0.0, is_reference=True, is_default=False),
-               dict(case="default", kind="fem", status="ok", elements="hex Q2", dofs=300, steps=50, wall_s=2.0,
-                    mae_x_mm=0.01, error_pct=1.5, is_reference=False, is_default=True)],
-              ("case", "kind", "status", "elements", "dofs", "steps", "wall_s", "mae_x_mm", "error_pct",
+               dict(case="default", kind="fem", status="ok", elements="hex Q2", dofs=300, ranks=1, steps=50,
+                    wall_s=2.0, mae_x_mm=0.01, error_pct=1.5, is_reference=False, is_default=True)],
+              ("case", "kind", "status", "elements", "dofs", "ranks", "steps", "wall_s", "mae_x_mm", "error_pct",
                "is_reference", "is_default"))
     (inputs.fidelity / "fidelity.md").write_text(
         "# FEM fidelity ladder\n\nScene `coin_pull`, fidelity `resolved`, setup `C3`, rungs `quick`.\n\n"
-        "Reference rung: `ref` (900 dofs).\n\nShipped default (default, hex Q2): error 1.50 %.\n\n"
+        "Reference rung: `ref` (900 dofs).\n\nRanks per rung: 1, except ref on 2: the solve time of that rung is "
+        "not on the others' one-core scale.\n\nShipped default (default, hex Q2): error 1.50 %.\n\n"
         "| case |\n|---|\n| ref |\n")
     _png(inputs.fidelity / "fidelity_pareto.png")
     inputs.stability.mkdir(parents=True)

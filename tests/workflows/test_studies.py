@@ -74,6 +74,7 @@ def test_stability_writes_csv_and_markdown(stability_rows):
     out, rows = stability_rows
     df = pd.read_csv(out / "stability.csv")
     assert list(df.case) == ["baseline", "nu0.5-disp", "pullin-free-bending"]
+    assert list(df.ranks.fillna(0)) == [1, 0, 1]      # the ranks that solved it (a rejected scene: none)
     md = (out / "stability.md").read_text()
     assert "| baseline |" in md and "Pull-in" in md
     base = rows["baseline"]
@@ -127,6 +128,24 @@ def test_fidelity_ladder_writes_csv_markdown_and_pareto_plot(tmp_path):
     md = (tmp_path / "fidelity.md").read_text()
     assert "Shipped default" in md and "| hex-Q2-mixed-coarse |" in md and "fidelity `as written`" in md
     assert rows[1]["newton_iterations"] > 0
+    # every rung records the ranks that shared its mesh (here one), in its result and the table
+    assert [json.loads(runner.result_path(tmp_path, c).read_text())["ranks"] for c in df.case] == [1, 1, 1]
+    assert list(df.ranks) == [1, 1, 1] and "Ranks per rung: 1." in md
+    # a reference solved on 2 ranks (as `--only <reference> --ranks-per-case 2` does), and a rung
+    # stored before results had `ranks` (its dataset's `mpi_ranks` says 1): the rerun reuses both,
+    # and the table names the rung whose time is not on the one-core scale
+    for case, edit in ((fidelity.REFERENCE, lambda r: r.update(ranks=2)), ("hex-Q2-mixed-coarse", lambda r: r.pop("ranks"))):
+        path = runner.result_path(tmp_path, case)
+        result = json.loads(path.read_text())
+        edit(result)
+        path.write_text(json.dumps(result))
+    fidelity.run_ladder("coin_pull", "C3", tmp_path, MPI.COMM_WORLD, rungs="full", overrides=TINY,
+                        only=["hex-Q2-mixed-coarse", fidelity.DEFAULT])
+    df = pd.read_csv(tmp_path / "fidelity.csv")
+    assert list(df.ranks) == [1, 1, 2]
+    md = (tmp_path / "fidelity.md").read_text()
+    assert f"Ranks per rung: 1, except {fidelity.REFERENCE} on 2: the solve time of that rung is not" in md
+    assert f"`{fidelity.REFERENCE}` (" in md and "dofs, 2 rank(s)" in md
 
 
 def test_resume_skips_completed_case(tmp_path):

@@ -64,7 +64,9 @@ def fidelity_points(path: Path) -> list[dict]:
     out = []
     for r in read_csv(path):
         group = "FEM ladder" if r.get("kind", "fem") in ("", "fem") else "surrogate on the ladder"
-        label, wall = r.get("case", ""), num(r, "wall_s")
+        label, wall, ranks = r.get("case", ""), num(r, "wall_s"), num(r, "ranks")
+        if ranks is not None and ranks > 1:   # its time is on more cores than the others'
+            label += f" ({ranks:.0f} ranks)"
         if r.get("status", "ok") != "ok":
             reason = r.get("reason", "")
             out.append(_point(group, label, "", wall, None, f"failed: {reason}" if reason else "failed", "", path))

@@ -461,7 +461,7 @@ def section_fidelity(rep: Report) -> Section:
     fidelity_arg = ""   # the ladder's own fidelity, so that the hint below reuses its rungs
     if md.is_file():   # what the ladder refined (its scene and fidelity), its reference and the verdict
         for line in md.read_text().splitlines():
-            if line.startswith(("Scene `", "Reference rung:", "Shipped default")):
+            if line.startswith(("Scene `", "Reference rung:", "Ranks per rung:", "Shipped default")):
                 sec.p(line)
             named = re.match(r"Scene `[^`]*`, fidelity `([^`]*)`", line)
             if named and named.group(1) != "as written":
@@ -471,7 +471,7 @@ def section_fidelity(rep: Report) -> Section:
         sec.img(rep.copy_image(png, "fidelity_pareto.png"), "Error against wall time: every rung, Pareto fronts "
                 "joined, the shipped default and the reference marked (`docs/fidelity_stability.md`).")
     keys = [("case", "rung", ""), ("kind", "kind", ""), ("elements", "elements", ""), ("dofs", "dofs", ".0f"),
-            ("steps", "steps", ".0f"), ("wall_s", "wall s", ".3g"), ("mae_x_mm", "MAE x mm", ".3g"),
+            ("ranks", "ranks", ".0f"), ("steps", "steps", ".0f"), ("wall_s", "wall s", ".3g"), ("mae_x_mm", "MAE x mm", ".3g"),
             ("mae_Fy_mN", "MAE Fy mN", ".3g"), ("error_pct", "error %", ".3g"), ("on_pareto", "Pareto", ""),
             ("status", "status", "")]
     table_rows = []
