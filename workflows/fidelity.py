@@ -250,7 +250,9 @@ def add_errors(rows, out_dir: Path) -> list[dict]:
 
 # --- outputs ---------------------------------------------------------------------------
 
-CSV_COLUMNS = ("case", "kind", "status", "elements", "cell", "order", "formulation", "poisson_ratio",
+AS_WRITTEN = "as written"   # the fidelity of a ladder run on the scene file itself (no --fidelity)
+
+CSV_COLUMNS = ("case", "kind", "fidelity", "status", "elements", "cell", "order", "formulation", "poisson_ratio",
                "resolution", "dt_max_s", "dofs", "ranks", "steps", "newton_iterations", "cutbacks", "solve_s", "wall_s",
                "mae_x_mm", "mae_Fy_mN", "mae_x_pct", "mae_Fy_pct", "error_pct", "travel_mm", "travel_err_mm",
                "travel_err_pct", "is_reference", "is_default", "on_pareto", "on_pareto_travel", "on_pareto_same_nu", "reason",
@@ -394,8 +396,11 @@ def run_ladder(scene_name: str, setup, out_dir, comm, rungs: str = "quick", over
         return None
     if extra_rows is not None:
         results = results + extra_rows(cases[0].setup)
+    # a stored rung is reused only for the same overrides, which begin with the fidelity's: so every
+    # row, stored or new (and a surrogate compared with them), is at this call's fidelity
+    results = [{**r, "fidelity": fidelity or AS_WRITTEN} for r in results]
     setup_name = cases[0].setup or "-"
-    header = (f"Scene `{scene_name}`, fidelity `{fidelity or 'as written'}`, setup `{setup_name}`, rungs `{rungs}`"
+    header = (f"Scene `{scene_name}`, fidelity `{fidelity or AS_WRITTEN}`, setup `{setup_name}`, rungs `{rungs}`"
               f"{f' (base step end/{STUDY_STEPS}; the shipped step in rung {SHIPPED})' if rungs == 'quick' else ''}, "
               f"{comm.size} MPI rank(s) in this call, {ranks_per_case} per rung; extra --set: "
               f"{' '.join(overrides) or 'none'}. {provenance.summary()}.")

@@ -19,6 +19,7 @@ from deapull.paper import TABLE2
 from deapull.workflows import report
 from deapull.workflows.report import assemble, pictures
 from deapull.workflows.report.document import Claim, Report, Section
+from deapull.workflows.report.tabular import read_csv
 from deapull.workflows.report.check import BrowserUnavailable, check_page, find_browser
 from tests.conftest import REPO, SWEEP
 
@@ -160,6 +161,19 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     assert "--setup C3 --fidelity resolved --out" in fid
     # and which rung ran on more ranks than the others (its time is shorter than one core's)
     assert "Ranks per rung: 1, except ref on 2" in fid
+    # a ladder's CSV names its fidelity, so the hint keeps it with or without the header line
+    md = (inputs.fidelity / "fidelity.md").read_text()
+    (inputs.fidelity / "fidelity.md").unlink()
+    report.build(tmp_path / "r2", inputs, progress=False)
+    fid2 = (tmp_path / "r2" / "report.md").read_text().split('<a id="fidelity"></a>')[1].split('<a id="stability"></a>')[0]
+    assert "--setup C3 --fidelity resolved --out" in fid2 and "fidelity `resolved`" not in fid2
+    # a ladder written before the column: its header line still names it
+    rows = read_csv(inputs.fidelity / "fidelity.csv")
+    write_csv(inputs.fidelity / "fidelity.csv", rows, [k for k in rows[0] if k != "fidelity"])
+    (inputs.fidelity / "fidelity.md").write_text(md)
+    report.build(tmp_path / "r3", inputs, progress=False)
+    fid3 = (tmp_path / "r3" / "report.md").read_text().split('<a id="fidelity"></a>')[1].split('<a id="stability"></a>')[0]
+    assert "--setup C3 --fidelity resolved --out" in fid3
     points = list(csv.DictReader(open(out / "tables" / "error-time-points.csv")))
     assert [p["label"] for p in points if p["group"] == "FEM ladder"] == ["ref (2 ranks)"]
     assert re.findall(r"<td>(.*?)</td>", re.search(r'<tr id="fid-ref">(.*?)</tr>', html).group(1))[:5] == [
@@ -242,11 +256,11 @@ def _png(path: Path) -> None:
 def _fake_studies(inputs: report.Inputs) -> None:
     """Tiny outputs of every study, in the formats their commands write."""
     write_csv(inputs.fidelity / "fidelity.csv",
-              [dict(case="ref", kind="fem", status="ok", elements="hex Q2", dofs=900, ranks=2, steps=50, wall_s=9.0,
-                    mae_x_mm=0.0, error_pct=0.0, is_reference=True, is_default=False),
-               dict(case="default", kind="fem", status="ok", elements="hex Q2", dofs=300, ranks=1, steps=50,
-                    wall_s=2.0, mae_x_mm=0.01, error_pct=1.5, is_reference=False, is_default=True)],
-              ("case", "kind", "status", "elements", "dofs", "ranks", "steps", "wall_s", "mae_x_mm", "error_pct",
+              [dict(case="ref", kind="fem", fidelity="resolved", status="ok", elements="hex Q2", dofs=900, ranks=2,
+                    steps=50, wall_s=9.0, mae_x_mm=0.0, error_pct=0.0, is_reference=True, is_default=False),
+               dict(case="default", kind="fem", fidelity="resolved", status="ok", elements="hex Q2", dofs=300, ranks=1,
+                    steps=50, wall_s=2.0, mae_x_mm=0.01, error_pct=1.5, is_reference=False, is_default=True)],
+              ("case", "kind", "fidelity", "status", "elements", "dofs", "ranks", "steps", "wall_s", "mae_x_mm", "error_pct",
                "is_reference", "is_default"))
     (inputs.fidelity / "fidelity.md").write_text(
         "# FEM fidelity ladder\n\nScene `coin_pull`, fidelity `resolved`, setup `C3`, rungs `quick`.\n\n"

@@ -131,6 +131,7 @@ def test_fidelity_ladder_writes_csv_markdown_and_pareto_plot(tmp_path):
     # every rung records the ranks that shared its mesh (here one), in its result and the table
     assert [json.loads(runner.result_path(tmp_path, c).read_text())["ranks"] for c in df.case] == [1, 1, 1]
     assert list(df.ranks) == [1, 1, 1] and "Ranks per rung: 1." in md
+    assert set(df.fidelity) == {"as written"}      # the CSV alone says what the rungs refined
     # a reference solved on 2 ranks (as `--only <reference> --ranks-per-case 2` does), and a rung
     # stored before results had `ranks` (its dataset's `mpi_ranks` says 1): the rerun reuses both,
     # and the table names the rung whose time is not on the one-core scale

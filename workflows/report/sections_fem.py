@@ -14,6 +14,7 @@ from deapull.paper import (ABAQUS_COIN_ELEMENTS, ABAQUS_ELEMENTS_PER_MEMBRANE, A
                            CONTACT_LOST_V, DATASET_POINTS, POISSON_RATIO, THRESHOLD_M, YOUNGS_MODULUS_PA)
 from deapull.io import atomic_write
 from deapull.workflows.fem_study import ladder_gap, with_beyond_the_ladder
+from deapull.workflows.fidelity import AS_WRITTEN
 from deapull.workflows.report import pictures, pictures_contact
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.inputs import SCENE, SETUPS, fields_run
@@ -458,14 +459,18 @@ def section_fidelity(rep: Report) -> Section:
         return sec
     rows = read_csv(csv_path)
     md = inputs.fidelity / "fidelity.md"
-    fidelity_arg = ""   # the ladder's own fidelity, so that the hint below reuses its rungs
+    # the ladder's own fidelity, so that the hint below reuses its rungs: its CSV's column, or for a
+    # ladder written before the column, its header line
+    named = {r["fidelity"] for r in rows if r.get("fidelity")}
     if md.is_file():   # what the ladder refined (its scene and fidelity), its reference and the verdict
         for line in md.read_text().splitlines():
             if line.startswith(("Scene `", "Reference rung:", "Ranks per rung:", "Shipped default")):
                 sec.p(line)
-            named = re.match(r"Scene `[^`]*`, fidelity `([^`]*)`", line)
-            if named and named.group(1) != "as written":
-                fidelity_arg = f" --fidelity {named.group(1)}"
+            header = re.match(r"Scene `[^`]*`, fidelity `([^`]*)`", line)
+            if header and not named:
+                named = {header.group(1)}
+    fidelity = named.pop() if len(named) == 1 else None
+    fidelity_arg = f" --fidelity {fidelity}" if fidelity and fidelity != AS_WRITTEN else ""
     png = inputs.fidelity / "fidelity_pareto.png"
     if png.is_file():
         sec.img(rep.copy_image(png, "fidelity_pareto.png"), "Error against wall time: every rung, Pareto fronts "
