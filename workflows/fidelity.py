@@ -265,10 +265,13 @@ MD_COLUMNS = (("rung", "case", ""), ("elements", "elements", ""), ("ν", "poisso
               ("Pareto", "on_pareto", ""), ("Pareto, same ν", "on_pareto_same_nu", ""), ("status", "status", ""))
 
 
+def ranks_suffix(ranks) -> str:
+    """" (N ranks)" for a rung solved on more than one rank (its time is then shorter), else ""."""
+    return f" ({int(ranks)} ranks)" if ranks is not None and int(ranks) > 1 else ""
+
+
 def _label(row) -> str:
-    """A rung's name, with its ranks when it ran on more than one (its time is then shorter)."""
-    ranks = row.get("ranks")
-    return row["case"] + (f" ({int(ranks)} ranks)" if ranks is not None and int(ranks) > 1 else "")
+    return row["case"] + ranks_suffix(row.get("ranks"))
 
 
 def plot_pareto(rows, path: Path) -> None:

@@ -36,6 +36,7 @@ import numpy as np
 from deapull.paper import ABAQUS_S
 from deapull.workflows.report.document import Report, Section, Table
 from deapull.workflows.fem_study import ladder_gap, with_beyond_the_ladder
+from deapull.workflows.fidelity import ranks_suffix
 from deapull.workflows.report.plots import BOUND, GAP, TRAVEL, X_MAE, plot_error_time
 from deapull.workflows.report.tabular import csv_text, fmt, num, read_csv, run_config
 
@@ -64,9 +65,7 @@ def fidelity_points(path: Path) -> list[dict]:
     out = []
     for r in read_csv(path):
         group = "FEM ladder" if r.get("kind", "fem") in ("", "fem") else "surrogate on the ladder"
-        label, wall, ranks = r.get("case", ""), num(r, "wall_s"), num(r, "ranks")
-        if ranks is not None and ranks > 1:   # its time is on more cores than the others'
-            label += f" ({ranks:.0f} ranks)"
+        label, wall = r.get("case", "") + ranks_suffix(num(r, "ranks")), num(r, "wall_s")
         if r.get("status", "ok") != "ok":
             reason = r.get("reason", "")
             out.append(_point(group, label, "", wall, None, f"failed: {reason}" if reason else "failed", "", path))
