@@ -11,14 +11,14 @@ output (:mod:`deapull.io`). The stages are its sub-packages, each importing only
     deapull.surrogate   torch surrogates                    (surrogate/)
     deapull.fem_solver  dolfinx solver                      (fem_solver/)
     deapull.meshing     gmsh meshes                         (meshing/)
-    deapull.scene, .dataset, .errors, .io, .provenance      (deapull/)
+    deapull.scene, .dataset, .geometry, .errors, .io, .provenance (deapull/)
 
 ``tests/deapull/test_layers.py`` runs the import-linter contract of ``pyproject.toml`` that
 keeps it so, and the check that no modules import each other in a circle
 (``scripts/check_layers.py``). Each package names its public API in ``__all__``; this one's
 is its modules.
 """
-from deapull import dataset, errors, io, protocol, provenance, scene
+from deapull import dataset, errors, geometry, io, protocol, provenance, scene
 
 __version__ = "0.1.0"
-__all__ = ["__version__", "dataset", "errors", "io", "protocol", "provenance", "scene"]
+__all__ = ["__version__", "dataset", "errors", "geometry", "io", "protocol", "provenance", "scene"]

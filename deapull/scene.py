@@ -96,6 +96,9 @@ class DEA:
     active_side: str = _choice("top", ("top", "bottom"), "which layer carries the electrodes")
     clamp_gap_m: float = _nonneg(0.0, "height of the clamped underside above the coin's / stop's top face; "
                                       "gravity sag closes it (pre-load)")
+    free_edge_radius_m: float = _nonneg(0.0, "radius of the rounded edge where the free end face meets the underside "
+                                             "(the edge that rides onto the coin's rim; 0: a sharp 90 degree edge, "
+                                             "whose contact with the rim is singular)")
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,9 @@ class Coin:
     height_m: float = _pos(0.00225, "coin height (y); the DEA rests on its top face")
     density_kg_m3: float = _pos(7700.0, "coin density; mass = mesh volume x density")
     edge_radius_m: float = _pos(0.0003, "fillet radius of the coin's top rim")
+    edge_shape: str = _choice("circular", ("circular", "c2"), "profile of the rim: circular (a quarter circle: "
+                              "its curvature jumps from 0 to 1/edge_radius_m where it meets the top face) or "
+                              "c2 (a superellipse blend: curvature continuous, 0 at both tangencies)")
     mu_t: float = _nonneg(0.55, "Coulomb friction DEA-coin (top)")
     mu_b: float = _nonneg(0.20, "Coulomb friction coin-ground (bottom)")
     center_from_tip_m: float = _num(0.003, doc="x distance from the DEA's free end to the coin centre, "
@@ -116,6 +122,7 @@ class Stop:
     radius_m: float = _pos(0.005, "radius of the stop's disc footprint")
     center_from_tip_m: float = _num(0.003, doc="x distance from the free end to the stop centre")
     edge_radius_m: float = _pos(0.0003, "fillet radius of the stop's top rim")
+    edge_shape: str = _choice("circular", ("circular", "c2"), "profile of the rim, as coin.edge_shape")
     mu_t: float = _nonneg(0.55, "Coulomb friction DEA-stop")
 
 
@@ -234,11 +241,17 @@ class Mesh:
                                         "table (>= 1; 1 = uniform; the layer's divisions stay n_active or n_passive)")
     tip_zone_m: float = _nonneg(0.0, "length (x) of the tip zone from the free end, meshed with its own uniform "
                                      "tip_zone_divisions (0: no tip zone); n_length and x_grading mesh the rest")
-    tip_zone_divisions: int = _num(4, lo=0, integer=True, doc="divisions along x of the tip zone")
+    tip_zone_divisions: int = _num(4, lo=0, integer=True, doc="divisions along x of the tip zone (beyond the "
+                                   "rounded free edge's radius, which its O-grid meshes)")
     rim_band_m: tuple = _floats("[a, b]: the band a <= |z| <= b where the tip's free edge crosses the coin's rim "
                                 "(the coin's contact patch), meshed with rim_band_divisions across ([]: no band); "
                                 "n_width sets the rest of the width by length")
     rim_band_divisions: int = _num(4, lo=0, integer=True, doc="divisions across the rim band (each side)")
+    free_edge_divisions: int = _num(2, lo=0, integer=True, doc="elements along each half of the rounded free "
+                                    "edge's arc (dea.free_edge_radius_m), x 2^level")
+    rim_band_width_m: float = _nonneg(0.0, "the rim band placed from the coin: this wide, centred on the |z| where the "
+                                           "free edge at rest crosses the middle of the coin's rim (0: rim_band_m "
+                                           "places it)")
 
 
 @dataclass(frozen=True)
@@ -288,7 +301,8 @@ class Scene:
 #: keys added after datasets were made: in the resolved scene (``to_toml``, what a dataset records and
 #: what a resume compares) only when set away from their default, so that the datasets made before
 #: them, which ran at that default, still count as done for the same scene
-WRITTEN_WHEN_SET = (("mesh", "underside_grading"),)
+WRITTEN_WHEN_SET = (("mesh", "underside_grading"), ("mesh", "rim_band_width_m"), ("mesh", "free_edge_divisions"), ("dea", "free_edge_radius_m"),
+                    ("coin", "edge_shape"), ("stop", "edge_shape"))
 
 
 def _default(cls, key: str):
@@ -455,6 +469,22 @@ def _check_consistency(scene: Scene) -> None:
     m = scene.mesh
     if m.tip_zone_m and not m.tip_zone_m < d.length_m / 2:
         raise SceneError(f"mesh.tip_zone_m = {m.tip_zone_m!r}: must be < half of dea.length_m = {d.length_m!r}")
+    if m.rim_band_width_m and m.rim_band_m:
+        raise SceneError(f"mesh.rim_band_width_m = {m.rim_band_width_m!r}: give either it (the band follows the "
+                         f"coin) or mesh.rim_band_m = {list(m.rim_band_m)!r}, not both")
+    if m.rim_band_width_m and not m.rim_band_width_m < 0.4 * d.width_m:
+        raise SceneError(f"mesh.rim_band_width_m = {m.rim_band_width_m!r}: must be < 0.4 dea.width_m = "
+                         f"{0.4 * d.width_m!r} (the band and its margins fit in the half width)")
+    if m.rim_band_width_m and scene.coin is None and scene.stop is None:
+        raise SceneError(f"mesh.rim_band_width_m = {m.rim_band_width_m!r}: needs a [coin] or [stop] to follow")
+    lower = d.active_thickness_m if d.active_side == "bottom" else d.passive_thickness_m
+    if d.free_edge_radius_m and not d.free_edge_radius_m < min(lower, m.tip_zone_m):
+        raise SceneError(f"dea.free_edge_radius_m = {d.free_edge_radius_m!r}: must be < the bottom layer's thickness "
+                         f"({lower!r}) and < mesh.tip_zone_m = {m.tip_zone_m!r} (a rounded edge is meshed in the "
+                         f"tip zone)")
+    if d.free_edge_radius_m and m.underside_grading != 1.0:
+        raise SceneError(f"mesh.underside_grading = {m.underside_grading!r}: must be 1 with a rounded free edge "
+                         f"(dea.free_edge_radius_m = {d.free_edge_radius_m!r}), whose O-grid sets the bottom rows")
     if m.rim_band_m and not (len(m.rim_band_m) == 2 and 0 < m.rim_band_m[0] < m.rim_band_m[1] < d.width_m / 2):
         raise SceneError(f"mesh.rim_band_m = {list(m.rim_band_m)!r}: expected [a, b] with 0 < a < b < "
                          f"dea.width_m / 2 = {d.width_m / 2!r}, or []")
@@ -651,7 +681,7 @@ def list_scenes() -> list[str]:
 
 
 def describe_keys() -> list[tuple[str, str, str, str]]:
-    """(key, default, allowed, description) for every scene key — the README's table."""
+    """(key, default, allowed, description) for every scene key — docs/scene_keys.md's table."""
     rows = [("gravity_m_s2", "9.8", _allowed(TOP_LEVEL["gravity_m_s2"].metadata),
              TOP_LEVEL["gravity_m_s2"].metadata["doc"])]
     for name, cls in SECTIONS.items():
@@ -677,3 +707,14 @@ def from_resolved_toml(text: str) -> Scene:
         h_tip = L / n if r == 1.0 else L * (r - 1.0) / (r ** n - 1.0)
         contact["penalty_N_m3"] = contact.pop("penalty_scale") * dea.get("youngs_modulus_Pa", 0.56e6) / h_tip
     return from_dict(raw)
+
+
+def keys_markdown() -> str:
+    """docs/scene_keys.md: every scene key with its default, what is allowed and what it means
+    (``deapull show-scene --keys`` prints it; a test holds the page equal to it)."""
+    head = ["# Scene keys", "",
+            "Every key of a scene file (`deapull show-scene --keys` prints this page). A key's section is its",
+            "TOML table; `--set section.key=value` overrides one on the command line, validated like the file.", "",
+            "| key | default | allowed | meaning |", "|---|---|---|---|"]
+    rows = [f"| `{k}` | {d} | {a} | {m.replace('|', '/')} |" for k, d, a, m in describe_keys()]
+    return "\n".join(head + rows) + "\n"

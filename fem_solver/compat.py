@@ -327,27 +327,33 @@ def facet_quadrature_points(mesh, facets, degree, rule="gauss"):
     """Physical points (n, 3) of a facet measure's quadrature (:func:`facet_measure`) on
     the given facets, and the cell (n,) each lies in.
 
-    The facets are mapped by their vertices (bilinear on quadrilaterals, affine on
-    triangles): exact for the flat, straight-edged facets of the DEA's underside.
+    Each facet's rule is placed on its face of the reference cell as the form compiler places it
+    (v0 + s (v1 - v0) + t (v2 - v0) over the face's reference vertices) and pushed forward by the
+    cell's coordinate map, so the points lie on curved (second-order) facets too, such as the DEA's
+    rounded free edge.
     """
     tdim = mesh.topology.dim
     facets = np.asarray(facets, dtype=np.int32)
     mesh.topology.create_connectivity(tdim - 1, tdim)
+    mesh.topology.create_connectivity(tdim, tdim - 1)
     f2c = mesh.topology.connectivity(tdim - 1, tdim)
-    geom = dolfinx.cpp.mesh.entities_to_geometry(mesh._mesh, tdim - 1, facets, False)
+    c2f = mesh.topology.connectivity(tdim, tdim - 1)
     quad = mesh.topology.cell_type == dolfinx.mesh.CellType.hexahedron
-    cell = basix.CellType.quadrilateral if quad else basix.CellType.triangle
+    cell_type = basix.CellType.hexahedron if quad else basix.CellType.tetrahedron
+    facet_type = basix.CellType.quadrilateral if quad else basix.CellType.triangle
     qtype = basix.quadrature.string_to_type(QUADRATURE_RULES[rule])
-    ref, _ = basix.make_quadrature(qtype, cell, degree)
-    s, t = ref[:, 0], ref[:, 1]
-    if quad:   # dolfinx's vertex order: (0,0), (1,0), (0,1), (1,1)
-        shape = np.stack([(1 - s) * (1 - t), s * (1 - t), (1 - s) * t, s * t], axis=1)
-    else:
-        shape = np.stack([1 - s - t, s, t], axis=1)
-    corners = mesh.geometry.x[geom[:, :shape.shape[1]]]          # (facets, vertices, 3)
-    points = np.einsum("qv,fvd->fqd", shape, corners).reshape(-1, 3)
-    cells = np.repeat([f2c.links(f)[0] for f in facets], len(s)).astype(np.int32)
-    return points, cells
+    ref, _ = basix.make_quadrature(qtype, facet_type, degree)
+    s, t = ref[:, :1], ref[:, 1:2]
+    vertices, faces = basix.geometry(cell_type), basix.topology(cell_type)[tdim - 1]
+    cmap, dofmap, x = mesh.geometry.cmap, mesh.geometry.dofmap, mesh.geometry.x
+    points, cells = [np.zeros((0, 3))], []
+    for f in facets:
+        c = f2c.links(f)[0]
+        v = vertices[faces[list(c2f.links(c)).index(f)]]
+        X = v[0] + s * (v[1] - v[0]) + t * (v[2] - v[0])
+        points.append(cmap.push_forward(X, x[dofmap.links(c)]))
+        cells.append(np.full(len(X), c, dtype=np.int32))
+    return np.concatenate(points), (np.concatenate(cells) if cells else np.zeros(0, dtype=np.int32))
 
 
 class PointEvaluator:

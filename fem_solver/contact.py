@@ -15,7 +15,13 @@ x = X_ref + u, with ρ its distance from the axis, q = (ρ − (r − r_f), x_y 
     slip rate    s   = (Δu − ΔX e_x) / Δt,  s_T = s − (s·n) n
     friction     t_T = −μ p_n s_T / √(|s_T|² + ε_v²)
 
-so both the flat top face and the rim / side wall are obstacles: a DEA tip that curls
+With ``edge_shape = "c2"`` the rim is the quarter of the superellipse |q_ρ|³ + |q_y|³ = r_f³
+instead of the circle: its curvature rises from 0 at both tangencies (the flat top and the side
+wall) to 1.78 / r_f at 45°, so the gap, the normal and the curvature are continuous where the
+DEA's edge rides from the top face onto the rim. There ``d`` is the first-order distance
+(‖q‖₃ − r_f) / |∇‖q‖₃| and ``n`` = ∇‖q‖₃ / |∇‖q‖₃| = (q_ρ², q_y²) / |(q_ρ², q_y²)|.
+
+Both the flat top face and the rim / side wall are obstacles: a DEA tip that curls
 over the far rim pushes on the side wall. The normal part is an energy (k_n/2 δ²);
 friction is not, so it enters the residual directly; UFL differentiates both. The
 regularisation is on the slip *rate* (ε_v in m/s), so results do not depend on the
@@ -28,8 +34,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 import ufl
+
+from deapull.geometry import rounded_cylinder_distance, rounded_cylinder_normal  # noqa: F401  (NumPy twins)
 
 
 @dataclass
@@ -42,7 +49,7 @@ class ObstacleTerms:
 
 
 def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, radius, edge_radius, mu,
-                  penalty_N_m3, slip_rate_reg_m_s):
+                  penalty_N_m3, slip_rate_reg_m_s, edge_shape="circular"):
     """UFL terms of penalty contact and regularised Coulomb friction against a rigid cylinder.
 
     Parameters
@@ -53,11 +60,12 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
     ds_contact : measure restricted to the DEA's contact surface
     center_x0, top_y, radius : obstacle geometry in the reference configuration (m)
     edge_radius : fillet radius of the top rim (m), < radius
+    edge_shape : "circular" (a quarter circle) or "c2" (the superellipse of curvature-continuous blend)
     mu : friction coefficient DEA–obstacle (Constant or float)
     penalty_N_m3 : normal penalty stiffness k_n
     slip_rate_reg_m_s : friction regularisation ε_v (m/s)
     """
-    n, depth = _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius)
+    n, depth = _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius, edge_shape)
     pn = penalty_N_m3 * depth
     t_T = mu * _unit_friction(u, u_old, (X - X_old) / dt, dt, n, pn, slip_rate_reg_m_s)
     traction = pn * n + t_T        # on the DEA, from the obstacle
@@ -70,7 +78,7 @@ def contact_terms(u, u_old, v, X, X_old, dt, ds_contact, *, center_x0, top_y, ra
     )
 
 
-def _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius):
+def _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius, edge_shape="circular"):
     """The obstacle's outward normal n and the penetration δ at the DEA's current points."""
     x = ufl.SpatialCoordinate(ds_contact.ufl_domain()) + u
     rx, rz = x[0] - center_x0 - X, x[2]
@@ -81,9 +89,19 @@ def _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius):
     # differ in their dependence on the arguments)
     corner = ufl.conditional(ufl.And(ufl.gt(q_r, 0.0), ufl.gt(q_y, 0.0)), 1.0, 0.0)
     on_top = ufl.conditional(ufl.gt(q_y, q_r), 1.0, 0.0)
-    q = ufl.sqrt(q_r ** 2 + q_y ** 2 + (1e-9 * radius) ** 2)
-    distance = corner * q + (1 - corner) * (on_top * q_y + (1 - on_top) * q_r) - edge_radius
-    n = corner * (q_r * e_rho + q_y * e_y) / q + (1 - corner) * (on_top * e_y + (1 - on_top) * e_rho)
+    tiny = 1e-9 * radius
+    if edge_shape == "c2":
+        a, b = ufl.max_value(q_r, 0.0), ufl.max_value(q_y, 0.0)
+        norm = (a ** 3 + b ** 3 + tiny ** 3) ** (1.0 / 3.0)
+        grad = ufl.sqrt(a ** 4 + b ** 4 + tiny ** 4)          # |∇‖q‖₃| ‖q‖₃²
+        rim_distance = (norm - edge_radius) * norm ** 2 / grad
+        rim_normal = (a ** 2 * e_rho + b ** 2 * e_y) / grad
+    else:
+        q = ufl.sqrt(q_r ** 2 + q_y ** 2 + tiny ** 2)
+        rim_distance = q - edge_radius
+        rim_normal = (q_r * e_rho + q_y * e_y) / q
+    distance = corner * rim_distance + (1 - corner) * (on_top * q_y + (1 - on_top) * q_r - edge_radius)
+    n = corner * rim_normal + (1 - corner) * (on_top * e_y + (1 - on_top) * e_rho)
     return n, ufl.max_value(-distance, 0.0)
 
 
@@ -114,39 +132,11 @@ class PatchProbe:
 
 
 def patch_probe(u, u_old, X, dt, ds_contact, coin_velocity, *, center_x0, top_y, radius, edge_radius,
-                penalty_N_m3, slip_rate_reg_m_s) -> PatchProbe:
+                penalty_N_m3, slip_rate_reg_m_s, edge_shape="circular") -> PatchProbe:
     """UFL forms of :class:`PatchProbe` for the obstacle of :func:`contact_terms` (same arguments;
     ``coin_velocity`` a Constant in m/s)."""
-    n, depth = _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius)
+    n, depth = _normal_and_depth(u, X, ds_contact, center_x0, top_y, radius, edge_radius, edge_shape)
     pn = penalty_N_m3 * depth
     t_T = _unit_friction(u, u_old, coin_velocity, dt, n, pn, slip_rate_reg_m_s)
     return PatchProbe(pressure=pn * ds_contact, pressure_vx=pn * (u - u_old)[0] / dt * ds_contact,
                       normal_x=-pn * n[0] * ds_contact, drag=-t_T[0] * ds_contact, coin_velocity=coin_velocity)
-
-
-def _rim_offsets(rho, y, top_y: float, radius: float, edge_radius: float):
-    """(q_ρ, q_y) from the fillet's centre line, and whether the point lies beyond both (the rim)."""
-    q_r, q_y = rho - (radius - edge_radius), y - (top_y - edge_radius)
-    return q_r, q_y, (q_r > 0) & (q_y > 0)
-
-
-def rounded_cylinder_distance(rho, y, top_y: float, radius: float, edge_radius: float):
-    """Signed distance (m, negative inside) of points at distance ``rho`` from the axis and
-    height ``y`` to the upright cylinder with a rounded top rim — NumPy twin of the UFL
-    expression in :func:`contact_terms` (inside the body only the
-    nearer of the top face and the side wall counts, as there)."""
-    q_r, q_y, corner = _rim_offsets(rho, y, top_y, radius, edge_radius)
-    flat = np.where(q_y > q_r, q_y, q_r)
-    return np.where(corner, np.hypot(q_r, q_y), flat) - edge_radius
-
-
-def rounded_cylinder_normal(rho, y, top_y: float, radius: float, edge_radius: float):
-    """Outward normal (n_ρ, n_y) of that cylinder at the same points, and whether each lies on the
-    rim's fillet — NumPy twin of ``n`` in :func:`contact_terms` (e_y on the top face, e_ρ on the
-    side wall)."""
-    q_r, q_y, corner = _rim_offsets(rho, y, top_y, radius, edge_radius)
-    q = np.hypot(q_r, q_y)
-    top = q_y > q_r
-    n_r = np.where(corner, q_r / np.where(corner, q, 1.0), np.where(top, 0.0, 1.0))
-    n_y = np.where(corner, q_y / np.where(corner, q, 1.0), np.where(top, 1.0, 0.0))
-    return n_r, n_y, corner

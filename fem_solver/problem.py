@@ -203,7 +203,7 @@ class DEAProblem:
                 u, self.u_old, v, self.X, self.X_old, self.dt, self.ds_contact,
                 center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
                 edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=self.penalty,
-                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
+                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s, edge_shape=self.obstacle.edge_shape)
             energy += self.contact.energy
         self.table = None
         if sc.table is not None:
@@ -246,7 +246,7 @@ class DEAProblem:
                 u, self.u_old, self.X, self.dt, self.ds_contact, self.probe_velocity,
                 center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
                 edge_radius=self.obstacle.edge_radius_m, penalty_N_m3=self.penalty,
-                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
+                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s, edge_shape=self.obstacle.edge_shape)
             self.probe_forms = {k: compat.form(getattr(probe, k)) for k in ("pressure", "pressure_vx", "normal_x",
                                                                            "drag")}
         if self.table is not None:
@@ -523,7 +523,7 @@ class DEAProblem:
         x = coords + self.w.x.array[dofs]
         rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
         depth = -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
-                                                   self.obstacle.edge_radius_m)
+                                                   self.obstacle.edge_radius_m, self.obstacle.edge_shape)
         local = float(np.max(depth, initial=0.0))
         return self.comm.allreduce(local, op=MPI.MAX)
 
@@ -556,7 +556,7 @@ class DEAProblem:
         lay = self.layout
         rho = np.hypot(x[:, 0] - lay.obstacle_center_x_m - float(self.X.value), x[:, 2])
         return -contact.rounded_cylinder_distance(rho, x[:, 1], lay.obstacle_top_y_m, lay.obstacle_radius_m,
-                                                  self.obstacle.edge_radius_m)
+                                                  self.obstacle.edge_radius_m, self.obstacle.edge_shape)
 
     def contact_points(self) -> tuple[np.ndarray, np.ndarray]:
         """This rank's quadrature points of the DEA–obstacle contact integral: their current

@@ -55,6 +55,23 @@ def slip_rate_bias(scene) -> str:
     return f"not measured for eps_v = {eps:g} m/s (studied: {', '.join(f'{v:g}' for v in SLIP_RATE_BIAS)})"
 
 
+def sharp_geometry_warnings(scene) -> list[str]:
+    """What of the DEA-obstacle geometry has no mesh-converged contact (docs/physics.md, "Contact
+    geometry"): a sharp free edge (its indentation of the rim is singular) and a circular rim (its
+    curvature jumps where the edge rides onto it)."""
+    obstacle = scene.coin or scene.stop
+    if obstacle is None:
+        return []
+    out = []
+    if scene.dea.free_edge_radius_m == 0:
+        out.append("dea.free_edge_radius_m = 0: the DEA's sharp free edge indents the rim with a singular "
+                   "stress, and the travel has no mesh-converged value; round it (0.5 mm in coin_pull)")
+    if obstacle.edge_shape == "circular":
+        out.append(f"{'coin' if scene.coin else 'stop'}.edge_shape = 'circular': the rim's curvature jumps where "
+                   "the free edge rides onto it; 'c2' blends it")
+    return out
+
+
 def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, progress: bool = True,
                 name: str | None = None) -> Path:
     """Solve one scene (one setup) and write ``out_dir/<setup or scene>.nc``.
@@ -73,6 +90,8 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
     if comm.rank == 0:    # one mesh split over ranks: one line, not one per rank
         log.info("%s: %d dofs on %d ranks, coin mass %s", name, problem.num_dofs(), comm.size,
                  f"{mass_kg * 1e3:.4f} g" if mass_kg else "-")
+        for line in sharp_geometry_warnings(sim.scene):
+            log.warning("%s: %s", name, line)
     writer = FieldWriter(problem, out_dir / f"{name}_fields.xdmf", fields_every) if fields_every > 0 else None
     stepper = sim.stepper(problem, progress=progress, on_step=writer)
     try:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import gmsh
@@ -94,12 +95,76 @@ def x_intervals(scene: Scene) -> list[tuple[float, float, int, bool]]:
     """The DEA's x intervals as (x0, x1, divisions, graded): the tip zone ``mesh.tip_zone_m``
     from the free end with its own uniform ``mesh.tip_zone_divisions`` (× 2^level), and the
     rest with ``mesh.n_length`` (× 2^level; graded by ``mesh.x_grading``); one interval without
-    a tip zone."""
+    a tip zone. With a rounded free edge the tip zone starts with the O-grid's two columns (the
+    edge's radius) and ``tip_zone_divisions`` mesh the rest of it."""
     m, L = scene.mesh, scene.dea.length_m
     k = 2 ** m.level
     if not m.tip_zone_m:
         return [(-L, 0.0, m.n_length * k, True)]
-    return [(-L, -L + m.tip_zone_m, m.tip_zone_divisions * k, False), (-L + m.tip_zone_m, 0.0, m.n_length * k, True)]
+    rest = (-L + m.tip_zone_m, 0.0, m.n_length * k, True)
+    edge = free_edge(scene)
+    if edge is None:
+        return [(-L, -L + m.tip_zone_m, m.tip_zone_divisions * k, False), rest]
+    r, a = edge.radius, edge.inner
+    return [(-L, -L + r - a, edge.divisions, False), (-L + r - a, -L + r, edge.divisions, False),
+            (-L + r, -L + m.tip_zone_m, m.tip_zone_divisions * k, False), rest]
+
+
+@dataclass(frozen=True)
+class FreeEdge:
+    """The rounded free bottom edge's O-grid (the corner square of side ``radius`` at the free end's
+    underside, in the x-y plane, extruded along z): an inner square of side ``inner`` at the arc's
+    centre and two blocks between it and the arc, each ``divisions`` along its half of the arc and
+    ``divisions`` from the arc to the inner square, which is ``divisions`` each way."""
+    radius: float
+    inner: float
+    divisions: int
+
+
+def free_edge(scene: Scene) -> FreeEdge | None:
+    """The O-grid of ``dea.free_edge_radius_m`` (None for a sharp edge): the inner square half the
+    radius, ``mesh.free_edge_divisions`` x 2^level divisions on every side of its blocks."""
+    r = scene.dea.free_edge_radius_m
+    if not r:
+        return None
+    return FreeEdge(radius=r, inner=r / 2, divisions=scene.mesh.free_edge_divisions * 2 ** scene.mesh.level)
+
+
+def y_intervals(scene: Scene, lay: Layout) -> list[tuple[float, float, int, str]]:
+    """The DEA's through-thickness intervals as (y0, y1, divisions, layer), bottom up: one per layer
+    with its ``mesh.n_active`` / ``n_passive`` (x 2^level), the bottom layer cut at the free edge's
+    O-grid (``dea.free_edge_radius_m``) into the arc's outer and inner rows and the rest."""
+    n = _divisions(scene)
+    layers = sorted((("active", lay.active_y_m), ("passive", lay.passive_y_m)), key=lambda kv: kv[1][0])
+    out = [(y0, y1, n[name], name) for name, (y0, y1) in layers]
+    edge = free_edge(scene)
+    if edge is None:
+        return out
+    y0, y1, count, name = out[0]
+    r, a, h = edge.radius, edge.inner, (y1 - y0) / count
+    return [(y0, y0 + r - a, edge.divisions, name), (y0 + r - a, y0 + r, edge.divisions, name),
+            (y0 + r, y1, max(1, round((y1 - y0 - r) / h)), name), *out[1:]]
+
+
+def rim_band(scene: Scene) -> tuple[float, float] | None:
+    """The band a <= |z| <= b meshed with ``mesh.rim_band_divisions``: ``mesh.rim_band_m`` as given, or,
+    with ``mesh.rim_band_width_m``, placed from the scene's coin (or stop): centred on the |z| where the
+    free edge at rest (a distance c = ``center_from_tip_m`` from the coin's axis) crosses the middle of
+    the rim, rho = radius - edge_radius / 2, i.e. z = sqrt(rho^2 - c^2); clipped to the width, with a
+    quarter of the band's width kept clear of the mid-plane and of the side face. None: no band."""
+    m = scene.mesh
+    if m.rim_band_m:
+        return tuple(m.rim_band_m)
+    obstacle = scene.coin or scene.stop
+    if not m.rim_band_width_m or obstacle is None:
+        return None
+    w, half = m.rim_band_width_m, scene.dea.width_m / 2
+    rho = obstacle.radius_m - obstacle.edge_radius_m / 2
+    zc = math.sqrt(max(rho ** 2 - obstacle.center_from_tip_m ** 2, 0.0))
+    a = min(max(zc - w / 2, w / 4), half - 1.25 * w)
+    if a <= 0:
+        raise ValueError(f"mesh.rim_band_width_m = {w!r}: the band does not fit in the half width {half!r}")
+    return a, a + w
 
 
 def z_intervals(scene: Scene) -> list[tuple[float, float, int]]:
@@ -110,9 +175,10 @@ def z_intervals(scene: Scene) -> list[tuple[float, float, int]]:
     m = scene.mesh
     k = 2 ** m.level
     zmin, zmax = _z_range(scene)
-    if not m.rim_band_m:
+    band = rim_band(scene)
+    if band is None:
         return [(zmin, zmax, _divisions(scene)["z"])]
-    a, b = m.rim_band_m
+    a, b = band
     half = scene.dea.width_m / 2
     per_m = m.n_width / (2 * half)
 
@@ -128,27 +194,59 @@ def z_intervals(scene: Scene) -> list[tuple[float, float, int]]:
 
 
 def _add_dea(scene: Scene, lay: Layout) -> dict:
-    """Add the two DEA layers, each cut into boxes at the x and z intervals (tip zone, rim band);
+    """Add the DEA as boxes, one per x, y and z interval (tip zone, rim band, layers), the rounded
+    free edge's O-grid in place of the corner's boxes; fragment them into one conforming body and
     return the volume tags by layer name."""
     occ = gmsh.model.occ
-    boxes = {}
-    for name, (y0, y1) in (("active", lay.active_y_m), ("passive", lay.passive_y_m)):
-        boxes[name] = [occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0)
-                       for x0, x1, _, _ in x_intervals(scene) for z0, z1, _ in z_intervals(scene)]
-    objects = [(3, t) for t in boxes["active"]]
-    tools = [(3, t) for t in boxes["passive"]]
-    _, pieces = occ.fragment(objects, tools)
+    xs, ys, zs = x_intervals(scene), y_intervals(scene, lay), z_intervals(scene)
+    edge = free_edge(scene)
+    pieces = {"active": [], "passive": []}
+    for iy, (y0, y1, _, name) in enumerate(ys):
+        for ix, (x0, x1, _, _) in enumerate(xs):
+            if edge is not None and ix < 2 and iy < 2 and not (ix == 1 and iy == 1):
+                continue        # the corner's boxes: the O-grid's two outer blocks replace them
+            pieces[name] += [occ.addBox(x0, y0, z0, x1 - x0, y1 - y0, z1 - z0) for z0, z1, _ in zs]
+    if edge is not None:
+        pieces[ys[0][3]] += _add_free_edge_blocks(edge, lay, zs)
+    objects = [(3, t) for t in pieces["active"]]
+    tools = [(3, t) for t in pieces["passive"]]
+    _, children = occ.fragment(objects, tools)
     occ.synchronize()
     out = {"active": [], "passive": []}
-    for (dim, tag), children in zip(objects + tools, pieces):
-        out["active" if (dim, tag) in objects else "passive"] += [t for _, t in children]
+    for (dim, tag), kids in zip(objects + tools, children):
+        out["active" if (dim, tag) in objects else "passive"] += [t for _, t in kids]
     return out
+
+
+def _add_free_edge_blocks(edge: FreeEdge, lay: Layout, zs) -> list[int]:
+    """The O-grid's two outer blocks in the corner square of the free end's underside: each between
+    the inner square and one half of the quarter-circle arc (centre c, from the end face through the
+    45 degree point M to the underside), extruded over every z interval; their volume tags."""
+    occ = gmsh.model.occ
+    r, a = edge.radius, edge.inner
+    cx, cy = -lay.length_m + r, lay.y_bottom_m + r
+    s = r / math.sqrt(2.0)
+    volumes = []
+    for z0, z1, _ in zs:
+        c = occ.addPoint(cx, cy, z0)
+        end_face, under, mid = occ.addPoint(cx - r, cy, z0), occ.addPoint(cx, cy - r, z0), occ.addPoint(cx - s, cy - s, z0)
+        inner = occ.addPoint(cx - a, cy - a, z0)
+        top, side = occ.addPoint(cx - a, cy, z0), occ.addPoint(cx, cy - a, z0)
+        for corner, arc_end in ((top, end_face), (side, under)):
+            arc = occ.addCircleArc(arc_end, c, mid)
+            loop = occ.addCurveLoop([occ.addLine(corner, arc_end), arc, occ.addLine(mid, inner),
+                                     occ.addLine(inner, corner)])
+            face = occ.addPlaneSurface([loop])
+            out = occ.extrude([(2, face)], 0.0, 0.0, z1 - z0)
+            volumes += [t for d, t in out if d == 3]
+        occ.remove([(0, c)])
+    return volumes
 
 
 def _structure_dea(scene: Scene, lay: Layout, vols: dict) -> None:
     """Transfinite curves, surfaces and volumes on the DEA boxes (and nothing else)."""
-    n = _divisions(scene)
-    xs, zs = x_intervals(scene), z_intervals(scene)
+    xs, ys, zs = x_intervals(scene), y_intervals(scene, lay), z_intervals(scene)
+    edge = free_edge(scene)
 
     def interval(lo, hi, intervals):
         for iv in intervals:
@@ -162,18 +260,19 @@ def _structure_dea(scene: Scene, lay: Layout, vols: dict) -> None:
                                                                 oriented=False)})
     for c in curves:
         x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(1, c)
-        if x1 - x0 > _TOL:
+        if x1 - x0 > _TOL and y1 - y0 <= _TOL:
             _, _, count, graded = interval(x0, x1, xs)
             progression = _x_progression(scene, c, count) if graded else 1.0
             gmsh.model.mesh.setTransfiniteCurve(c, count + 1, "Progression", progression)
             continue
         elif z1 - z0 > _TOL:
             count = interval(z0, z1, zs)[2]
-        else:
-            in_active = lay.active_y_m[0] - _TOL <= y0 and y1 <= lay.active_y_m[1] + _TOL
-            count = n["active"] if in_active else n["passive"]
+        elif y1 - y0 > _TOL and abs(x1 - x0) <= _TOL:
+            count = interval(y0, y1, ys)[2]
             gmsh.model.mesh.setTransfiniteCurve(c, count + 1, "Progression", _y_progression(scene, lay, c, count))
             continue
+        else:   # in the rounded free edge's O-grid: half of the arc, or the diagonal from M inward
+            count = edge.divisions
         gmsh.model.mesh.setTransfiniteCurve(c, count + 1)
     for s in surfaces:
         gmsh.model.mesh.setTransfiniteSurface(s)
@@ -214,7 +313,11 @@ def _tag_groups(scene: Scene, lay: Layout, vols: dict, coin_tag) -> None:
     add(2, dea_box(-L, a1, -w / 2, 0, a1, w / 2), groups.ELECTRODE_TOP, "electrode_top")
     add(2, dea_box(-L, a0, -w / 2, 0, a0, w / 2), groups.ELECTRODE_BOTTOM, "electrode_bottom")
     y0 = lay.y_bottom_m
-    add(2, dea_box(-L, y0, -w / 2, 0, y0, w / 2), groups.DEA_CONTACT, "dea_contact")
+    contact = dea_box(-L, y0, -w / 2, 0, y0, w / 2)
+    r = scene.dea.free_edge_radius_m
+    if r > 0:   # the rounded free edge, which rides onto the coin's rim, is part of the underside
+        contact += [t for t in dea_box(-L, y0, -w / 2, -L + r, y0 + r, w / 2) if gmsh.model.getType(2, t) != "Plane"]
+    add(2, contact, groups.DEA_CONTACT, "dea_contact")
     if coin_tag is not None:
         add(3, [coin_tag], groups.COIN, "coin")
         x0, r, h = lay.obstacle_center_x_m, scene.coin.radius_m, scene.coin.height_m

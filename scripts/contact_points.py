@@ -68,7 +68,7 @@ def main(argv=None) -> int:
         v = (P[i] - P[i - 1])[on] / (a["t"][i] - a["t"][i - 1])
         rx, rz = x[:, 0] - lay.obstacle_center_x_m - XC[i], x[:, 2]
         rho = np.hypot(rx, rz)
-        n_r, n_y, rim = contact.rounded_cylinder_normal(rho, x[:, 1], top, R, er)
+        n_r, n_y, rim = contact.rounded_cylinder_normal(rho, x[:, 1], top, R, er, sc.coin.edge_shape)
         n_x = n_r * rx / rho
         print(f"{a['V'][i]:5.0f} {on.sum():3d} {1e3 * np.sum(w * v[:, 0]) / w.sum():7.3f} {1e3 * a['u'][i]:7.3f} "
               f"{1e3 * np.mean(abs(v[:, 2])):7.3f} {abs(a['Fx'][i]) / (mu_t * abs(a['Fy'][i])):6.3f} "

@@ -41,6 +41,8 @@ def pytest_collection_modifyitems(config, items):
         if _fem_folder(item.path):
             item.add_marker(pytest.mark.fem)
 TINY_MESH = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004")
+#: coin_pull with the sharp free edge and its rim band placed by hand (the meshes of tests written for it)
+SHARP = ("dea.free_edge_radius_m=0.0", "mesh.rim_band_width_m=0.0")
 
 
 def mpirun(n: int, *args: str, timeout: float = 600) -> subprocess.CompletedProcess:

@@ -59,6 +59,9 @@ def cmd_scenes(args) -> int:
 
 
 def cmd_show_scene(args) -> int:
+    if args.keys:
+        print(scenes.keys_markdown(), end="")
+        return 0
     args.scene = args.name
     print(load_scene(args).to_toml(), end="")
     return 0
@@ -87,8 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.set_defaults(func=cmd_scenes)
 
-    p = sub.add_parser("show-scene", help="print the resolved scene as TOML")
-    p.add_argument("name", help="shipped scene name or path")
+    p = sub.add_parser("show-scene", help="print the resolved scene as TOML (--keys: every key, as Markdown)")
+    p.add_argument("name", nargs="?", default="coin_pull", help="shipped scene name or path (default coin_pull)")
+    p.add_argument("--keys", action="store_true", help="print the table of every scene key (docs/scene_keys.md)")
     add_scene_args(p, scene=False)
     p.set_defaults(func=cmd_show_scene)
 

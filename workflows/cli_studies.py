@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from deapull import scene as scenes
-from deapull.workflows import fem_study
+from deapull.workflows import convergence
 from deapull.workflows.args import add_scene_args, names, overrides_of
 from deapull.workflows.fidelity import run_ladder, summary_table as fidelity_table
 from deapull.workflows.stability import run_stability, summary_table as stability_table
@@ -49,9 +49,16 @@ def cmd_stability(args) -> int:
 
 
 def cmd_fem_study(args) -> int:
-    cases = [c for c in args.cases.split(",") if c]   # bad studies, cases or reference: InputError before any run
-    return fem_study.run_studies(fem_study.studies_from(args.study), Path(args.out), Path(args.reference), cases,
-                                 args.reference_ranks)
+    from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
+    convergence.load_study(args.study)          # a bad study file: InputError before any run
+    result = convergence.run_study(args.study, Path(args.out), MPI.COMM_WORLD, args.ranks_per_case,
+                                   Path(args.publish) if args.publish else None)
+    if MPI.COMM_WORLD.rank != 0:
+        return 0
+    print("\n".join(convergence.report_lines(result)))
+    if result["failed"]:
+        print("failed: " + "; ".join(f"{k}: {v}" for k, v in result["failed"].items()))
+    return 1 if result["failed"] else 0
 
 
 def _common(p) -> None:
@@ -91,5 +98,9 @@ def register(sub) -> None:
     p = sub.add_parser("fem-study", help="FEM accuracy studies of coin_pull C3: the contact-ladder reference's "
                                          "convergence table and bound, and each study's cases against it "
                                          "(default: the shipped default and its contact rule doubled; resumes)")
-    fem_study.add_arguments(p)
+    p.add_argument("--study", default="contact_reference",
+                   help="a study of studies/ by name, or a TOML file (default contact_reference: the contact "
+                        "ladders' orders and bound, and the data fidelity against their Richardson value)")
+    p.add_argument("--publish", default="", help="also write the study's JSON into this folder (bench/reference)")
+    _common(p)
     p.set_defaults(func=cmd_fem_study)

@@ -33,21 +33,20 @@ PROTOCOL_SETS = {
         "rhr": ("load.protocol='ramp_hold_ramp'", "load.ramp_time_s=0.5", "load.hold_time_s=0.2",
                 "load.voltage_end_V=150.0", "load.ramp_down_time_s=0.3", "load.end_time_s=1.0"),
         "triangle": ("load.protocol='triangle'", "load.ramp_time_s=0.5", "load.end_time_s=1.0"),
-        "release": ("load.protocol='release'", "load.ramp_time_s=1.0", "load.end_time_s=1.0"),
+        # placed at 400 V on the still coin, the free edge crosses the rim at |z| ~ 1.9-2.5 mm, and the
+        # DEA presses the table harder (coin_release.toml)
+        "release": ("load.protocol='release'", "load.ramp_time_s=1.0", "load.end_time_s=1.0",
+                    "mesh.rim_band_width_m=0.0", "mesh.rim_band_m=[0.0015, 0.004]", "mesh.rim_band_divisions=5",
+                    "table.penalty_N_m3=2e12"),
         **{f"random{k}": ("load.protocol='random'", f"load.seed={k}", "load.rate_max_V_s=2000.0",
                           "load.segment_min_s=0.05", "load.segment_max_s=0.2", "load.end_time_s=1.0")
            for k in (1, 2, 3)},
     },
     # the MPC's full push (5 V per 1 ms step: 0 -> 400 V in 80 ms), then 200 ms held: the coin moves
-    # ~30 mm/s at the top, twelve times the ramp's speed, and coasts ~0.1 mm after it (docs/control.md)
-    # The coin lags the tip ~1.4 mm on the low-margin coins (C5/C6) at that speed, so the tip's edge
-    # crosses the rim at |z| ~ 2.9 mm, below the ramps' band (3-5 mm): the push's band reaches 2.5 mm
-    # (0.5 mm elements as the resolved ramps'; with 3-5 mm C5 kept 13-16 points and went 17 % short)
-    # and the coin's pull presses the DEA into the table harder than on the ramps (1.05-1.42 um at
-    # 1e12 N/m^3, against <= 0.94 um): the table twice as stiff, as the release's
+    # ~30 mm/s at the top, twelve times the ramp's speed, and coasts after it (docs/control.md); the
+    # coin's pull presses the DEA into the table harder than on the ramps: the table twice as stiff
     "push": {
-        "fast": ("load.ramp_time_s=0.08", "load.end_time_s=0.28", "time.dt_max_s=0.001",
-                 "mesh.rim_band_m=[0.0025, 0.005]", "mesh.rim_band_divisions=5", "table.penalty_N_m3=2e12"),
+        "fast": ("load.ramp_time_s=0.08", "load.end_time_s=0.28", "time.dt_max_s=0.001", "table.penalty_N_m3=2e12"),
     },
 }
 COLUMNS = (("setup", "case", "12s"), ("points", "steps", "6d"), ("travel mm", "travel_mm", "10.3f"),

@@ -93,3 +93,51 @@ def test_static_balance_at_placement_checks_the_cone_without_inertia():
     inside = force_balance_residual(rest, rest, -0.9 * MU * M * G, 0.0, 0.0, M, MU, G)
     outside = force_balance_residual(rest, rest, -1.5 * MU * M * G, 0.0, 0.0, M, MU, G)
     assert inside == 0.0 and outside == pytest.approx(0.5 * MU * M * G, rel=1e-12)
+
+
+def _curvature(rho, y, top, radius, rim, shape, h=1e-8):
+    """div n of the rim's normal field (2D, (rho, y)) by central differences: the curvature of the
+    level set through the point."""
+    from deapull.geometry import rounded_cylinder_normal
+    n_r = lambda r, yy: rounded_cylinder_normal(r, yy, top, radius, rim, shape)[0]  # noqa: E731
+    n_y = lambda r, yy: rounded_cylinder_normal(r, yy, top, radius, rim, shape)[1]  # noqa: E731
+    return (n_r(rho + h, y) - n_r(rho - h, y)) / (2 * h) + (n_y(rho, y + h) - n_y(rho, y - h)) / (2 * h)
+
+
+def test_the_c2_rim_has_its_gap_normal_and_curvature_continuous_at_the_tangency():
+    """The blended rim (coin.edge_shape = "c2") against the circular one, on the surface where
+    the top face meets the rim (q_rho = 0, the tangency): the gap and the normal are continuous
+    there for both (finite differences across it), and the curvature of the surface is too for
+    the blend only (0 on the flat, -> 0 on the rim), while the circle's jumps to 1/r_f. Its normal
+    is the gradient of its gap everywhere on the rim. Broken once with the blend's exponent 3 -> 2
+    (a circle again): the curvature check failed."""
+    from deapull.geometry import rounded_cylinder_distance, rounded_cylinder_normal
+    top, radius, rim = 2.25e-3, 5e-3, 1e-3
+    start = radius - rim                    # where the rim starts
+    eps = np.array([1e-7, 1e-6, 1e-5])
+    for shape in ("c2", "circular"):
+        for y in (top, top + 2e-5):       # on the surface and 20 um above it
+            d_in = rounded_cylinder_distance(start - eps, y, top, radius, rim, shape)
+            d_out = rounded_cylinder_distance(start + eps, y, top, radius, rim, shape)
+            assert np.all(np.abs(d_out - d_in) <= 2.1 * eps * 1e-2 + 1e-15)       # continuous, flat slope
+            n_in = np.array(rounded_cylinder_normal(start - eps, y, top, radius, rim, shape)[:2])
+            n_out = np.array(rounded_cylinder_normal(start + eps, y, top, radius, rim, shape)[:2])
+            assert np.all(np.abs(n_out - n_in) <= 2.1 * eps / rim + 1e-12)        # the normal: continuous
+    q = 1e-3 * rim                            # just onto the rim, on its surface
+    on_c2 = _curvature(np.array([start + q]), np.array([top]), top, radius, rim, "c2")
+    on_circle = _curvature(np.array([start + q]), np.array([top - q ** 2 / (2 * rim)]), top, radius, rim, "circular")
+    flat = _curvature(np.array([start - q]), np.array([top]), top, radius, rim, "c2")
+    assert abs(flat[0]) < 1.0 and abs(on_c2[0]) * rim < 0.01                     # ~0 on both sides
+    assert on_circle[0] * rim == pytest.approx(1.0, rel=0.01)                    # the circle's jump
+    # on the rim (45 degrees and near the side wall) the normal is the gap's gradient
+    angle = np.radians([30.0, 45.0, 80.0])
+    s = rim / np.cbrt(np.cos(angle) ** 3 + np.sin(angle) ** 3)          # on the superellipse
+    rho, y = start + s * np.cos(angle), top - rim + s * np.sin(angle)
+    h = 1e-9
+    g_r = (rounded_cylinder_distance(rho + h, y, top, radius, rim, "c2")
+           - rounded_cylinder_distance(rho - h, y, top, radius, rim, "c2")) / (2 * h)
+    g_y = (rounded_cylinder_distance(rho, y + h, top, radius, rim, "c2")
+           - rounded_cylinder_distance(rho, y - h, top, radius, rim, "c2")) / (2 * h)
+    n_r, n_y, on_rim = rounded_cylinder_normal(rho, y, top, radius, rim, "c2")
+    assert on_rim.all() and np.allclose(rounded_cylinder_distance(rho, y, top, radius, rim, "c2"), 0.0, atol=1e-15)
+    assert n_r == pytest.approx(g_r, abs=1e-6) and n_y == pytest.approx(g_y, abs=1e-6)

@@ -158,6 +158,7 @@ class CoinGeometry:
     radius_m: float
     height_m: float
     edge_radius_m: float = 0.0  # fillet of the top rim
+    edge_shape: str = "circular"  # its profile (deapull.geometry)
 
 
 def run_scene(run_attrs: dict):
@@ -171,7 +172,7 @@ def coin_geometry(sc) -> CoinGeometry | None:
     if sc is None or sc.coin is None:
         return None
     return CoinGeometry(-sc.dea.length_m + sc.coin.center_from_tip_m, sc.coin.radius_m, sc.coin.height_m,
-                        sc.coin.edge_radius_m)
+                        sc.coin.edge_radius_m, sc.coin.edge_shape)
 
 
 def mirror_z(points: np.ndarray, polys: list) -> tuple[np.ndarray, list]:
@@ -303,8 +304,10 @@ def coin_outline_mm(c: CoinGeometry, x_shift_m: float, n: int = 8) -> np.ndarray
     corners are rounded by the rim's fillet."""
     r, h, e, xc = c.radius_m, c.height_m, c.edge_radius_m, c.centre_x_m + x_shift_m
     a = np.linspace(0.0, np.pi / 2, n)
-    right = np.column_stack([xc + r - e + e * np.cos(a), h - e + e * np.sin(a)])
-    left = np.column_stack([xc - r + e - e * np.sin(a), h - e + e * np.cos(a)])
+    power = 2.0 / 3.0 if c.edge_shape == "c2" else 1.0     # the superellipse |q|_3 = e, or the circle
+    cos, sin = np.cos(a) ** power, np.sin(a) ** power
+    right = np.column_stack([xc + r - e + e * cos, h - e + e * sin])
+    left = np.column_stack([xc - r + e - e * sin, h - e + e * cos])
     return np.vstack([[xc - r, 0.0], [xc + r, 0.0], right, left]) * 1e3
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from deapull import scene as scenes
+from deapull.geometry import rounded_cylinder_distance
 from deapull.workflows.report.pictures import (STAGES, CoinGeometry, Colouring, Scene3D, _coin_x_mm, _hex_lattice,
                                                coin_outline_mm, colouring, draw_table, frame_title, plt, save_png)
 from matplotlib.collections import PolyCollection  # noqa: E402  (after pictures chose the Agg backend)
@@ -33,19 +34,10 @@ from matplotlib.patches import Circle, Polygon  # noqa: E402
 PRESSURE_CMAP = "autumn_r"
 
 
-def rounded_cylinder_distance(rho, y, top_y: float, radius: float, edge_radius: float):
-    """Signed distance (m, negative inside) to the upright cylinder with a rounded top rim: the
-    NumPy twin of ``fem_solver.contact.rounded_cylinder_distance`` (this module needs no FEniCSx)."""
-    q_r, q_y = rho - (radius - edge_radius), y - (top_y - edge_radius)
-    corner = (q_r > 0) & (q_y > 0)
-    flat = np.where(q_y > q_r, q_y, q_r)
-    return np.where(corner, np.hypot(q_r, q_y), flat) - edge_radius
-
-
 def coin_depth(x: np.ndarray, coin: CoinGeometry, x_shift_m: float) -> np.ndarray:
     """Penetration δ (m, > 0 inside) of points ``x`` (n, 3) into the coin moved by ``x_shift_m``."""
     rho = np.hypot(x[:, 0] - coin.centre_x_m - x_shift_m, x[:, 2])
-    return -rounded_cylinder_distance(rho, x[:, 1], coin.height_m, coin.radius_m, coin.edge_radius_m)
+    return -rounded_cylinder_distance(rho, x[:, 1], coin.height_m, coin.radius_m, coin.edge_radius_m, coin.edge_shape)
 
 
 @dataclass(frozen=True)

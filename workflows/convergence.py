@@ -1,0 +1,257 @@
+"""Mesh-convergence studies defined as data: a TOML file of cases and ladders, solved by the one
+runner (:mod:`deapull.workflows.runner`), summarised as observed orders, Richardson values and a
+stated error bound.
+
+A study file (``studies/<name>.toml``) has
+
+* ``[study]``: ``scene``, ``setup``, ``time_s`` (the time at which x(t) is compared),
+  ``safety_factor`` (Roache's F_s of the grid-convergence index, 1.25 for three levels);
+* ``[cases]``: each case a list of ``--set`` overrides on the scene file as written;
+* ``[ladders.<name>]``: ``cases`` (three, coarse to fine) and ``ratio`` (the refinement ratio r);
+* ``[checks]``: ``dt`` (a pair: the change from halving the step, added to the bound whole),
+  ``default`` (the data fidelity's case, compared with the Richardson value) and ``pairs`` (name ->
+  [case, case]: two-level changes reported beside the bound, e.g. the contact rule and the penalty).
+
+For each ladder with values f₃ (coarse), f₂, f₁ (fine) of a quantity, the observed order is
+p = ln((f₃ − f₂)/(f₂ − f₁)) / ln r (defined when both differences have the same sign: a monotone
+ladder), the Richardson value f₁ + (f₁ − f₂)/(r^p − 1), and the fine level's grid-convergence index
+GCI = F_s |f₁ − f₂| / |f₁| / (r^p − 1). The quantities are x at ``time_s`` and the mean absolute
+difference of x(t) between consecutive levels (its order from the ratio of the two differences).
+The bound is the sum of the ladders' GCI on x(``time_s``) and the step's change: the two ladders
+refine independent directions, each holding the other at its middle level.
+
+    deapull fem-study --study contact_reference --out out/fem_study [--publish bench/reference]
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from deapull import dataset
+from deapull.errors import InputError
+from deapull.io import write_json
+
+log = logging.getLogger(__name__)
+
+STUDY_DIR = Path(__file__).resolve().parents[1] / "studies"
+SCHEMA = 1
+#: the common time grid of the x(t) differences (s): every record of a 1 s ramp lies on 1/720 s steps
+GRID = np.linspace(0.0, 1.0, 1001)
+
+
+def study_path(name_or_path: str | Path) -> Path:
+    """A study shipped in ``studies/`` by name, or a path to a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml":
+        if not p.is_file():
+            raise InputError(f"--study {str(name_or_path)!r}: no such file")
+        return p
+    candidate = STUDY_DIR / f"{name_or_path}.toml"
+    if not candidate.is_file():
+        shipped = ", ".join(sorted(q.stem for q in STUDY_DIR.glob("*.toml")))
+        raise InputError(f"--study {str(name_or_path)!r}: unknown study; shipped: {shipped}")
+    return candidate
+
+
+def load_study(name_or_path: str | Path) -> dict:
+    """The study file, checked: every ladder and check names defined cases, each ladder three."""
+    path = study_path(name_or_path)
+    try:
+        study = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise InputError(f"{path}: not valid TOML ({err})") from None
+    for key in ("study", "cases", "ladders"):
+        if key not in study:
+            raise InputError(f"{path}: missing [{key}]")
+    cases = study["cases"]
+    for name, overrides in cases.items():
+        if not isinstance(overrides, list) or not all(isinstance(o, str) and "=" in o for o in overrides):
+            raise InputError(f"{path}: cases.{name} = {overrides!r}: expected a list of 'section.key=value'")
+    for name, ladder in study["ladders"].items():
+        names = ladder.get("cases", [])
+        if len(names) != 3 or not all(n in cases for n in names):
+            raise InputError(f"{path}: ladders.{name}.cases = {names!r}: expected three of the cases "
+                             f"({', '.join(cases)}), coarse to fine")
+        if not ladder.get("ratio", 0) > 1:
+            raise InputError(f"{path}: ladders.{name}.ratio = {ladder.get('ratio')!r}: expected a number > 1")
+    checks = study.get("checks", {})
+    named = [*checks.get("dt", []), checks.get("default", ""), *(n for pair in checks.get("pairs", {}).values()
+                                                                 for n in pair)]
+    unknown = [n for n in named if n and n not in cases]
+    if unknown:
+        raise InputError(f"{path}: [checks] names {unknown[0]!r}, not a case; cases: {', '.join(cases)}")
+    study["path"] = str(path)
+    return study
+
+
+def cases_of(study: dict) -> list:
+    """The runner's cases of a study (the scene file as written plus each case's overrides)."""
+    from deapull.workflows.runner import Case
+    s = study["study"]
+    return [Case(name, s["scene"], s.get("setup"), tuple(overrides), s.get("description", ""))
+            for name, overrides in study["cases"].items()]
+
+
+# --- the numbers -----------------------------------------------------------------------------
+
+def observed(coarse: float, middle: float, fine: float, ratio: float, safety: float = 1.25) -> dict:
+    """Observed order, Richardson value and the fine level's GCI (%) of one quantity on a ladder
+    (NaN where the ladder is not monotone)."""
+    d_cm, d_mf = middle - coarse, fine - middle
+    out = {"values": [coarse, middle, fine], "monotone": bool(d_cm * d_mf > 0)}
+    if not out["monotone"] or d_mf == 0:
+        return {**out, "observed_order": math.nan, "richardson": math.nan, "gci_percent": math.nan}
+    p = math.log(d_cm / d_mf) / math.log(ratio)
+    factor = ratio ** p - 1.0
+    return {**out, "observed_order": p, "richardson": fine + d_mf / factor,
+            "gci_percent": 100.0 * safety * abs(d_mf / fine) / factor}
+
+
+def order_of_differences(e_coarse: float, e_fine: float, ratio: float) -> float:
+    """The order of a ladder from two successive differences (e.g. the MAE of x(t) between levels)."""
+    if not (e_coarse > 0 and e_fine > 0):
+        return math.nan
+    return math.log(e_coarse / e_fine) / math.log(ratio)
+
+
+def case_metrics(path: Path, time_s: float) -> dict:
+    """x(time_s), x(1 s), the travel, the peak overlap at the contact points and the fewest contact
+    points of a step that touches, from one case's dataset."""
+    run = dataset.read(path, ("t", "x", "n_contact", "penetration_qp_m", "stick"))
+    c = run.columns
+    t, x = np.asarray(c["t"]), np.asarray(c["x"])
+    touching = np.asarray(c["n_contact"])
+    sliding = touching[(np.asarray(c["stick"]) == 0) & (touching > 0)]
+    return {"x_at_t_mm": float(np.interp(time_s, t, x)) * 1e3, "x_end_mm": float(x[-1]) * 1e3,
+            "travel_mm": float(np.max(np.abs(x))) * 1e3,
+            "peak_overlap_um": float(np.max(c["penetration_qp_m"])) * 1e6,
+            "min_points": int(touching[touching > 0].min()) if (touching > 0).any() else 0,
+            "min_points_sliding": int(sliding.min()) if sliding.size else 0,
+            "t": t, "x": x}
+
+
+def mae_mm(a: dict, b: dict) -> float:
+    """Mean absolute difference of x(t) of two cases on the common grid (mm)."""
+    return float(np.mean(np.abs(np.interp(GRID, a["t"], a["x"]) - np.interp(GRID, b["t"], b["x"])))) * 1e3
+
+
+def summarise(study: dict, metrics: dict) -> dict:
+    """The study's results: per ladder its orders, Richardson values and GCI; the bound; the
+    default's error against the Richardson value; the checks. ``metrics``: case -> case_metrics."""
+    s, checks = study["study"], study.get("checks", {})
+    safety = float(s.get("safety_factor", 1.25))
+    ladders, richardson = {}, []
+    for name, lad in study["ladders"].items():
+        names, r = lad["cases"], float(lad["ratio"])
+        if not all(n in metrics for n in names):
+            continue
+        m = [metrics[n] for n in names]
+        x = observed(*(c["x_at_t_mm"] for c in m), r, safety)
+        end = observed(*(c["x_end_mm"] for c in m), r, safety)
+        e_cm, e_mf = mae_mm(m[0], m[1]), mae_mm(m[1], m[2])
+        ladders[name] = {
+            "label": lad.get("label", name), "cases": names, "ratio": r,
+            "observed_order_x_at_t": x["observed_order"], "x_at_t_mm": x["values"], "monotone": x["monotone"],
+            "richardson_x_at_t_mm": x["richardson"], "gci_x_at_t_percent": x["gci_percent"],
+            "mae_x_mm": [e_cm, e_mf], "observed_order_mae_x": order_of_differences(e_cm, e_mf, r),
+            "x_end_mm": end["values"], "observed_order_x_end": end["observed_order"],
+            "peak_overlap_um": [c["peak_overlap_um"] for c in m],
+            "peak_overlap_change_percent": 100.0 * abs(m[2]["peak_overlap_um"] / m[1]["peak_overlap_um"] - 1.0),
+            "min_points": min(c["min_points"] for c in m),
+        }
+        richardson.append(x["richardson"])
+    out = {"schema": SCHEMA, "study": s.get("name", Path(study["path"]).stem), "scene": s["scene"],
+           "setup": s.get("setup"), "time_s": float(s["time_s"]), "safety_factor": safety, "ladders": ladders,
+           "cases": {n: {k: v for k, v in m.items() if k not in ("t", "x")} for n, m in metrics.items()},
+           "overrides": study["cases"]}
+    dt = checks.get("dt", [])
+    dt_change = (100.0 * abs(metrics[dt[1]]["x_at_t_mm"] / metrics[dt[0]]["x_at_t_mm"] - 1.0)
+                 if len(dt) == 2 and all(n in metrics for n in dt) else math.nan)
+    out["dt_change_percent"] = dt_change
+    gcis = [lad["gci_x_at_t_percent"] for lad in ladders.values()]
+    complete = len(ladders) == len(study["ladders"])
+    out["bound_percent"] = (sum(gcis) + dt_change) if complete and gcis else math.nan
+    # the reference value: the shared middle case corrected by each ladder's Richardson step
+    middle = _shared_middle(study)
+    if complete and middle in metrics and all(np.isfinite(richardson)):
+        base = metrics[middle]["x_at_t_mm"]
+        out["reference_x_at_t_mm"] = base + sum(rv - base for rv in richardson)
+    else:
+        out["reference_x_at_t_mm"] = math.nan
+    default = checks.get("default", "")
+    if default in metrics and np.isfinite(out["reference_x_at_t_mm"]):
+        out["default_case"] = default
+        out["default_error_percent"] = 100.0 * (metrics[default]["x_at_t_mm"] / out["reference_x_at_t_mm"] - 1.0)
+    out["pairs"] = {name: {"cases": pair, "change_percent": 100.0 * (metrics[pair[1]]["x_at_t_mm"]
+                                                                      / metrics[pair[0]]["x_at_t_mm"] - 1.0)}
+                    for name, pair in checks.get("pairs", {}).items() if all(n in metrics for n in pair)}
+    return out
+
+
+def _shared_middle(study: dict) -> str:
+    middles = {lad["cases"][1] for lad in study["ladders"].values()}
+    return middles.pop() if len(middles) == 1 else ""
+
+
+def bound_from_rungs(result: dict) -> float:
+    """The bound (%) recomputed from the rungs' stored x(time_s) values alone: Σ GCI + the step's change."""
+    total = 0.0
+    for lad in result["ladders"].values():
+        total += observed(*lad["x_at_t_mm"], lad["ratio"], result["safety_factor"])["gci_percent"]
+    return total + result["dt_change_percent"]
+
+
+def report_lines(result: dict) -> list[str]:
+    """The study as text: each ladder, its orders and GCI, the bound and the default's error."""
+    t = result["time_s"]
+    lines = [f"{result['study']}: {result['scene']} {result['setup']}, x({t:g} s)"]
+    for name, lad in result["ladders"].items():
+        xs = " / ".join(f"{v:.4f}" for v in lad["x_at_t_mm"])
+        lines.append(f"  {name} ({lad['label']}): x = {xs} mm, order {lad['observed_order_x_at_t']:.2f} "
+                     f"(MAE of x(t) {lad['mae_x_mm'][0] * 1e3:.2f} / {lad['mae_x_mm'][1] * 1e3:.2f} um, order "
+                     f"{lad['observed_order_mae_x']:.2f}), Richardson {lad['richardson_x_at_t_mm']:.4f} mm, "
+                     f"GCI {lad['gci_x_at_t_percent']:.3f} %; peak overlap "
+                     + " / ".join(f"{v:.2f}" for v in lad["peak_overlap_um"])
+                     + f" um; fewest contact points {lad['min_points']}")
+    lines.append(f"  halving the step: {result['dt_change_percent']:.3f} %")
+    lines.append(f"  bound (sum of the GCIs and the step's change): {result['bound_percent']:.3f} % (goal <= 1 %)")
+    lines.append(f"  reference x({t:g} s) = {result['reference_x_at_t_mm']:.4f} mm")
+    if "default_error_percent" in result:
+        lines.append(f"  the data fidelity ({result['default_case']}): {result['default_error_percent']:+.3f} % "
+                     f"against it (goal within 2 %)")
+    for name, pair in result["pairs"].items():
+        lines.append(f"  {name} ({pair['cases'][0]} -> {pair['cases'][1]}): {pair['change_percent']:+.3f} %")
+    return lines
+
+
+def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: Path | None = None) -> dict | None:
+    """Solve a study's cases (resuming), then, on rank 0, summarise what is solved into
+    ``<out>/<study>.json`` (and ``<publish>/<study>.json``) and return it."""
+    from deapull.workflows.runner import run_cases
+    study = load_study(name_or_path)
+    name = Path(study["path"]).stem
+    results = run_cases(cases_of(study), out, comm, ranks_per_case, desc=name)
+    if comm.rank != 0:
+        return None
+    metrics = {}
+    for r in results:
+        if r and r.get("status") == "ok":
+            metrics[r["case"]] = case_metrics(Path(out) / r["dataset"], float(study["study"]["time_s"]))
+            metrics[r["case"]].update(dofs=r["dofs"], wall_s=r["wall_s"], ranks=r["ranks"])
+    failed = {r["case"]: r.get("reason", "") for r in results if r and r.get("status") != "ok"}
+    result = summarise(study, metrics)
+    result["failed"] = failed
+    result["commands"] = [f"deapull fem-study --study {name} --out {out}"]
+    write_json(Path(out) / f"{name}.json", result, indent=2)
+    if publish is not None:
+        write_json(Path(publish) / f"{name}.json", result, indent=2)
+    return result
+
+
+def load_result(path: Path) -> dict:
+    return json.loads(Path(path).read_text())
