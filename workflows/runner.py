@@ -26,6 +26,7 @@ import logging
 import math
 import os
 import shutil
+import socket
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -75,14 +76,20 @@ class Claims:
     for this call of the runner, so a claim left by a run that was killed never blocks a
     later one, and two studies run into one folder do not see each other's claims (each
     solves what was missing when it started, as before). Rank 0 removes the folder when the
-    study ends; a ``.claims-*`` folder left by a killed run may be deleted.
+    study ends. Each folder names its owner (``OWNER``: the host and the process id of rank 0);
+    a new run removes the folders of this host whose owner is no longer running (a run killed
+    with -9 leaves its folder behind).
     """
+
+    OWNER = ".owner"
 
     def __init__(self, out_dir: Path, comm):
         token = comm.bcast(uuid.uuid4().hex[:12] if comm.rank == 0 else None, root=0)
         self.folder = Path(out_dir) / f".claims-{token}"
         if comm.rank == 0:
+            remove_dead_claims(Path(out_dir))
             self.folder.mkdir(parents=True, exist_ok=True)
+            (self.folder / self.OWNER).write_text(f"{socket.gethostname()} {os.getpid()}\n")
         comm.Barrier()
 
     def take(self, name: str) -> bool:
@@ -109,6 +116,34 @@ class Claims:
 
     def remove(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:     # someone else's process: running
+        return True
+    return True
+
+
+def remove_dead_claims(out_dir: Path) -> list[Path]:
+    """Remove the ``.claims-*`` folders under ``out_dir`` whose owner ran on this host and has
+    stopped (or that name no owner, from a run killed before it wrote one); return them."""
+    host, gone = socket.gethostname(), []
+    for folder in Path(out_dir).glob(".claims-*"):
+        try:
+            owner_host, pid = (folder / Claims.OWNER).read_text().split()
+            dead = owner_host == host and not _running(int(pid))
+        except (OSError, ValueError):
+            dead = time.time() - folder.stat().st_mtime > 60     # no owner yet: not a starting run's
+        if dead:
+            shutil.rmtree(folder, ignore_errors=True)
+            gone.append(folder)
+    if gone:
+        log.info("removed the claims of stopped runs: %s", ", ".join(g.name for g in gone))
+    return gone
 
 
 # --- cases and their results -------------------------------------------------------------

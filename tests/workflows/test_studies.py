@@ -379,3 +379,26 @@ def test_the_ladder_at_a_named_fidelity_refines_that_fidelity_in_every_rung():
     assert scenes.load("coin_pull", setup="C3", overrides=plain["hex-Q2-mixed-coarse"].overrides).mesh.n_length == 8
     with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: resolved"):
         fidelity.ladder_cases("coin_pull", "C3", fidelity="finest")
+
+
+def test_a_new_run_removes_the_claims_of_a_killed_run(tmp_path):
+    """A run killed with -9 leaves its ``.claims-<run>/`` behind; the next run on this host removes
+    the folders whose owner has stopped and keeps a running one's. Broken once with the removal
+    skipped: the dead run's folder stayed."""
+    import os
+    import subprocess
+    import sys
+    from mpi4py import MPI
+    from deapull.workflows.runner import Claims
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    host = __import__("socket").gethostname()
+    for name, pid in (("killed", dead.pid), ("running", os.getpid())):
+        folder = tmp_path / f".claims-{name}"
+        (folder / "C1").mkdir(parents=True)
+        (folder / Claims.OWNER).write_text(f"{host} {pid}\n")
+    claims = Claims(tmp_path, MPI.COMM_SELF)
+    left = sorted(p.name for p in tmp_path.glob(".claims-*"))
+    assert ".claims-killed" not in left and ".claims-running" in left and claims.folder.name in left
+    assert (claims.folder / Claims.OWNER).read_text().split() == [host, str(os.getpid())]
+    claims.remove()
