@@ -9,11 +9,9 @@ export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 MPIRUN := mpirun -n $(NP)
-#: the FEM's fidelity for the datasets and the FEM plants (a [fidelities.NAME] table of the scene;
-#: docs/fem_accuracy.md): resolved (default) resolves the tip-coin contact patch, ~3-4 min a ramp on
-#: one core; FIDELITY= runs the scene file as written, the fast preview of `make demo` (~30 s a ramp,
-#: its travel -3 % to +41 % off the resolved contact)
-FIDELITY ?= resolved
+#: the FEM's fidelity: empty (default) is the scene file as written, the data fidelity (its error against
+#: the contact ladders: bench/reference/contact_reference.json); FIDELITY=preview is the quick look
+FIDELITY ?=
 FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
 .PHONY: help setup demo test mesh solve sweep excitation push-ramps bench-fem bench-blas bench-control-fem bench-inference control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
@@ -25,7 +23,7 @@ help: ## list the targets
 setup: ## install apt packages, the venv, torch (CPU) and the project (idempotent)
 	@bash scripts/setup.sh
 
-demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3 (the fast preview fidelity), dataset and plot in out/demo
+demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3 (the data fidelity), dataset and plot in out/demo
 	$(DEAPULL) solve --scene coin_pull --out $(OUT)/demo
 	$(DEAPULL) plot $(OUT)/demo/C3.nc --out $(OUT)/demo/C3.png
 
@@ -41,7 +39,7 @@ mesh: setup ## mesh the default scene into $(OUT)/mesh
 solve: setup ## FEM solve of one setup: make solve SETUP=C5
 	$(DEAPULL) solve --scene coin_pull --setup $(or $(SETUP),C3) $(FIDELITY_ARG) --out $(DATA)
 
-sweep: setup ## the 8 setups at FIDELITY (resolved) under mpirun -n $(NP) into $(DATA)/ (~15 min; resumes if interrupted)
+sweep: setup ## the 8 setups under mpirun -n $(NP) into $(DATA)/ (resumes if interrupted)
 	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --out $(DATA)
 
 push-ramps: setup ## the ramp in 80 ms (the MPC's full push, 5 V per 1 ms step), then held 200 ms, for C1..C8 into $(DATA)/push (resumes; 3-5 min a setup; the rim band and table that a fast push needs)
@@ -52,19 +50,18 @@ excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C
 		--out $(DATA)/excitation
 
 bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the committed contact-ladder reference (its bound and what it leaves out), Newton its, 8-setup sweep; beside ABAQUS 130 s
-	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP) --fidelity '$(FIDELITY)'
+	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
 
 bench-blas: setup ## the resolved Jacobian's LU (MUMPS, UMFPACK) with the system BLAS (OpenBLAS) vs the reference BLAS, same run; BLAS_SOLVE=1 adds the whole C3 ramp under both
 	$(PY) bench/bench_blas.py --out $(OUT)/bench_blas $(if $(BLAS_SOLVE),--solve)
 
-FEM_STUDY ?= reference,patch-rule,shipped
-fem-study: setup ## FEM accuracy: the resolved-patch reference ladder, its rule, the shipped default against it (FEM_STUDY=all: every study); resumes; ~1.5 h on one core
-	$(DEAPULL) fem-study --study $(FEM_STUDY) --out $(OUT)/fem_study
+fem-study: setup ## the contact reference: two mesh ladders, the step halved, the data fidelity against their Richardson value (studies/contact_reference.toml; resumes; hours on 2 cores); writes bench/reference/contact_reference.json
+	$(MPIRUN) $(DEAPULL) fem-study --study contact_reference --out $(OUT)/fem_study --publish bench/reference
 
-fidelity: setup ## error against run time ladder on coin_pull C3 at FIDELITY (resolved: every rung refines or coarsens it; ~1.5-2 h on 2 cores); FIDELITY= the file as written (~12 min); resumes
+fidelity: setup ## error against run time ladder on coin_pull C3 at FIDELITY (every rung refines or coarsens it); resumes
 	$(MPIRUN) $(DEAPULL) fidelity --scene coin_pull --setup C3 $(FIDELITY_ARG) --out $(OUT)/fidelity
 
-stability: setup ## stiff and extreme cases (issue 4) at FIDELITY (resolved: ~1.5 h on 2 cores, 170 min of case time); FIDELITY= the files as written; resumes
+stability: setup ## stiff and extreme cases at FIDELITY; resumes
 	$(MPIRUN) $(DEAPULL) stability $(FIDELITY_ARG) --out $(OUT)/stability
 
 bench-surrogate: setup ## 1 s rollout time of each surrogate model (needs $(DATA) from make sweep)

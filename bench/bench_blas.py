@@ -132,7 +132,7 @@ def short(paths: list[str]) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/bench_blas")
-    ap.add_argument("--fidelity", default="resolved",
+    ap.add_argument("--fidelity", default="",
                     help="a [fidelities.NAME] of coin_pull ('' = the file as written); default resolved")
     ap.add_argument("--repeats", type=int, default=5, help="numeric factorisations timed per package")
     ap.add_argument("--solve", action="store_true", help="also the whole C3 ramp under both BLAS")

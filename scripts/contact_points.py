@@ -28,7 +28,7 @@ import numpy as np
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("setup")
-    p.add_argument("--fidelity", default="resolved")
+    p.add_argument("--fidelity", default="")
     p.add_argument("--mesh-dir", default=None, help="default /tmp/contact_points_<setup>")
     p.add_argument("--save", default=None, help="also save the per-point record (.npz)")
     p.add_argument("--voltages", default="260,300,340,370,390")

@@ -28,9 +28,8 @@ def add_scene_args(p: argparse.ArgumentParser, scene: bool = True, setup: bool =
 
 def add_fidelity_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fidelity", default=None, metavar="NAME",
-                   help="a named fidelity of the scene file ([fidelities.NAME]; coin_pull: resolved, the "
-                        "resolved contact patch, docs/fem_accuracy.md), applied before --set; default: the "
-                        "file as written")
+                   help="a named fidelity of the scene file ([fidelities.NAME]; coin_pull: preview, the quick "
+                        "look), applied before --set; default: the file as written, the data fidelity")
 
 
 def overrides_of(args, scene_name=None) -> tuple[str, ...]:

@@ -67,6 +67,18 @@ def cmd_show_scene(args) -> int:
     return 0
 
 
+def cmd_docs(args) -> int:
+    from deapull.workflows import docs_tables
+    if args.check:
+        stale = docs_tables.stale_pages()
+        for page in stale:
+            print(f"{page}: its results tables differ from the results files (run deapull docs)", file=sys.stderr)
+        return 1 if stale else 0
+    for page in docs_tables.write_pages():
+        print(f"rewrote {page}")
+    return 0
+
+
 def cmd_mesh(args) -> int:
     sc = load_scene(args)
     from deapull.meshing.build import write_mesh  # lazy: gmsh loads only when this command runs
@@ -95,6 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keys", action="store_true", help="print the table of every scene key (docs/scene_keys.md)")
     add_scene_args(p, scene=False)
     p.set_defaults(func=cmd_show_scene)
+
+    p = sub.add_parser("docs", help="rewrite the README's and docs/' results tables from the committed results files")
+    p.add_argument("--check", action="store_true", help="only check: exit 1 naming each page that differs")
+    p.set_defaults(func=cmd_docs)
 
     p = sub.add_parser("mesh", help="mesh a scene with gmsh (writes mesh.msh and mesh.json)")
     add_scene_args(p)

@@ -7,7 +7,7 @@ from pathlib import Path  # noqa: F401
 import pytest
 
 from deapull import scene as scenes
-from tests.conftest import DATA
+from tests.conftest import DATA, SHARP
 
 #: the test-size C3 scene of tests/data/sweep/C3.nc (regenerate:
 #: deapull solve --scene coin_pull --setup C3 --out DIR --set mesh.n_length=8 --set mesh.n_width=1
@@ -16,7 +16,7 @@ from tests.conftest import DATA
 #: friction regularisation eps_v = 1e-4 m/s and the placement's first try at full gravity,
 #: the defaults before 2026-11-23; its penalty 10 E / h_tip = 1.12e9 N/m^3 on this 8-element mesh;
 #: the table, which the fixture did not have, 1 m down where nothing reaches it)
-C3_TEST = ("mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004", "mesh.symmetry='none'",
+C3_TEST = (*SHARP, "mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004", "mesh.symmetry='none'",
            "solver.linear_solver='mumps'", "contact.slip_rate_regularisation_m_s=1e-4",
            "time.placement_first_step=1.0", "contact.quadrature_degree=4", "contact.penalty_N_m3=1120000000.0",
            "table.height_m=-1.0")

@@ -17,9 +17,10 @@ from deapull.fem_solver.run import solve_scene
 from deapull.fem_solver.simulation import mesh_scene
 from deapull.meshing import groups
 from deapull.meshing.layout import layout
+from tests.conftest import SHARP
 
 #: a tiny C3 whose mid-plane z = 0 is a grid plane (n_width even), 0.6 s ramp to 400 V
-TINY_C3 = ("mesh.n_length=8", "mesh.n_width=2", "mesh.coin_size_m=0.004", "load.ramp_time_s=1.0",
+TINY_C3 = (*SHARP, "mesh.n_length=8", "mesh.n_width=2", "mesh.coin_size_m=0.004", "load.ramp_time_s=1.0",
            "load.end_time_s=1.0", "time.dt_max_s=0.004", "solver.linear_solver='umfpack'")
 
 

@@ -51,6 +51,7 @@ from deapull.fem_solver import compat
 from deapull.fem_solver.problem import DEAProblem
 from deapull.fem_solver.simulation import Simulation, mesh_scene
 from deapull.meshing.layout import layout
+from tests.conftest import SHARP
 
 #: mesh of the rigid-motion tests: 12 mm from the free end in 1 mm (x) by 1 mm (z) facets,
 #: over the coin (whose far rim is 8 mm from the free end), the rest in two elements
@@ -59,7 +60,7 @@ FINE_TIP = ("mesh.n_length=2", "mesh.tip_zone_m=0.012", "mesh.tip_zone_divisions
 
 #: the real coin (r = 5 mm, centre 3 mm from the free end) with a sharp rim: a flat punch (its
 #: 1 µm fillet, and the side wall's band r − d < ρ < r, change the force by ~d / r < 1e-3)
-FLAT_PUNCH = ("coin.edge_radius_m=1e-6", "table.height_m=-1.0", *FINE_TIP)
+FLAT_PUNCH = (*SHARP, "coin.edge_radius_m=1e-6", "table.height_m=-1.0", *FINE_TIP)
 
 #: the straight rim (see the module docstring): where the fillet starts, from the free end (m)
 RIM_START_FROM_TIP_M = 0.004
@@ -301,7 +302,7 @@ def test_the_patch_probe_reads_the_friction_speed_curve_of_a_sheared_patch(rim, 
 # --- the penalty's compliance ----------------------------------------------------------
 
 #: the DEA let down onto the coin under gravity (V = 0), 1 mm facets along x over the coin, no table
-RESTING = ("mesh.n_length=4", "mesh.tip_zone_m=0.008", "mesh.tip_zone_divisions=8", "mesh.n_width=4",
+RESTING = (*SHARP, "mesh.n_length=4", "mesh.tip_zone_m=0.008", "mesh.tip_zone_divisions=8", "mesh.n_width=4",
            "mesh.symmetry='half_z'", "table.height_m=-1.0")
 
 

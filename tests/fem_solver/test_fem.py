@@ -15,14 +15,14 @@ from deapull.fem_solver import electro
 from deapull.fem_solver.run import solve_scene
 from deapull.fem_solver.stepping import SolveFailed
 from deapull import scene as scenes
-from tests.conftest import REPO, mpirun
+from tests.conftest import REPO, SHARP, mpirun
 from tests.fem_solver.conftest import balance_bound_N
 
 # quasi-static small-voltage bending: two steps, no gravity, a narrow beam (beam theory)
 BENDING = ("gravity_m_s2=0", "load.voltage_max_V=40", "time.dt_initial_s=0.5", "time.dt_max_s=0.5",
            "mesh.n_length=4", "mesh.n_width=1", "dea.width_m=0.004")
 # a short, cheap coin protocol: the same ramp compressed into 40 ms, a tiny mesh
-SHORT_COIN = ("load.end_time_s=0.04", "load.ramp_time_s=0.04", "time.dt_max_s=0.004", "time.dt_initial_s=0.004",
+SHORT_COIN = (*SHARP, "load.end_time_s=0.04", "load.ramp_time_s=0.04", "time.dt_max_s=0.004", "time.dt_initial_s=0.004",
               "mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004")
 
 

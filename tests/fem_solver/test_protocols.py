@@ -5,8 +5,9 @@ import xarray as xr
 
 from deapull import protocol, scene as scenes
 from deapull.fem_solver.run import solve_scene
+from tests.conftest import SHARP
 
-TEST_MESH = ("mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004")
+TEST_MESH = (*SHARP, "mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004")
 
 
 def test_release_pulls_the_coin_toward_the_clamp(tmp_path):

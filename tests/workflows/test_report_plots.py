@@ -30,7 +30,8 @@ def _read(path):
 
 
 def _inputs(tmp_path):
-    return report.Inputs.under(tmp_path / "out", tmp_path / "data", reference=tmp_path / "none" / "reference.json")
+    return report.Inputs.under(tmp_path / "out", tmp_path / "data",
+                               reference=tmp_path / "none" / "contact_reference.json")
 
 
 def test_the_points_are_exactly_those_of_the_result_files(tmp_path):
@@ -67,37 +68,40 @@ def test_the_points_are_exactly_those_of_the_result_files(tmp_path):
     assert len(sources) == 2 and sources == sorted(sources), sources
 
 
-def test_the_contact_convergence_levels_come_from_the_reference_file(tmp_path, monkeypatch):
-    from deapull.workflows import fem_study
-    monkeypatch.setattr(fem_study, "COMMITTED_REFERENCE", tmp_path / "none")
-    path = tmp_path / "reference.json"
-    path.write_text(json.dumps({"cases": ["a", "b"], "travel_m": [1.01e-3, 1.0e-3], "wall_s": [10.0, 40.0],
-                                "travel_ref_m": 1.0e-3, "error_bound_rel": 0.01}))
+REFERENCE = {"time_s": 0.95, "reference_x_at_t_mm": -1.0, "bound_percent": 0.5, "default_error_percent": 1.0,
+             "cases": {"a": {"x_at_t_mm": -1.01, "wall_s": 10.0}, "b": {"x_at_t_mm": -0.995, "wall_s": 40.0}},
+             "ladders": {"tip": {"label": "tip", "x_at_t_mm": [-1.02, -1.01, -1.005], "observed_order_x_at_t": 1.0,
+                                 "richardson_x_at_t_mm": -1.0, "gci_x_at_t_percent": 0.3}}}
+
+
+def test_the_contact_convergence_points_come_from_the_reference_file(tmp_path):
+    """Each case of the contact study at its x(0.95 s) error against the Richardson value, and the
+    bound at the costliest case's time. Broken once with the error taken against the finest case:
+    the points moved."""
+    path = tmp_path / "contact_reference.json"
+    path.write_text(json.dumps(REFERENCE))
     points = sections_error_time.reference_points(path)
     assert [(p["label"], p["metric"], p["wall_s"]) for p in points] == [("a", "travel error", 10.0),
-                                                                        ("b", "travel error bound", 40.0)]
-    assert np.allclose([p["error_pct"] for p in points], [1.0, 1.0])
+                                                                        ("b", "travel error", 40.0),
+                                                                        ("reference", "travel error bound", 40.0)]
+    assert np.allclose([p["error_pct"] for p in points], [1.0, 0.5, 0.5])
 
 
-def test_the_reference_refined_beyond_its_ladder_gets_an_at_least_point(tmp_path):
-    """Runs refined beyond the reference's ladder (its folder's ``beyond_the_ladder.json``): the
-    finest level gets, beside its ladder's bound (▼), a point at the smallest change they measured
-    (▲: its error is likely at least that), whose status names the range; the plot's legend says
-    so. Broken once: the point at the largest change (8 %, not 3 %)."""
-    (tmp_path / "reference.json").write_text(json.dumps({"cases": ["a", "b"], "travel_m": [1.01e-3, 1.0e-3],
-                                                         "wall_s": [10.0, 40.0], "travel_ref_m": 1.0e-3,
-                                                         "error_bound_rel": 0.01}))
-    (tmp_path / "beyond_the_ladder.json").write_text(json.dumps({"runs": [
-        {"refines": "layers", "dofs": 9, "dt_max_s": 0.01, "travel_m": 0.97e-3, "resolved_same_step_m": 1.0e-3},
-        {"refines": "underside", "dofs": 9, "dt_max_s": 0.01, "travel_m": 1.15e-3, "resolved_same_step_m": 1.25e-3}]}))
-    points = sections_error_time.reference_points(tmp_path / "reference.json")
-    assert [(p["label"], p["metric"]) for p in points] == [("a", "travel error"), ("b", "travel error bound"),
-                                                           ("b", plots.GAP)]
-    assert np.allclose([p["error_pct"] for p in points], [1.0, 1.0, 3.0])
-    assert "-3.0 % to -8.0 %" in points[2]["status"] and "at least" in points[2]["status"]
-    fig = plots.draw_error_time(points, [])
-    labels = [t.get_text() for ax in fig.axes for leg in [ax.get_legend()] if leg for t in leg.get_texts()]
-    assert any("refined beyond" in label for label in labels), labels
+def test_the_fem_accuracy_section_gives_the_ladders_and_the_bound(tmp_path):
+    """The section's ladder table and its claim come from contact_reference.json: the bound and the
+    data fidelity's error, and whether the bound meets the 1 % goal."""
+    from deapull.workflows.report import sections_fem
+    from deapull.workflows.report.document import Report
+    from deapull.workflows.report.inputs import Inputs
+    path = tmp_path / "contact_reference.json"
+    path.write_text(json.dumps(REFERENCE))
+    rep = Report(tmp_path / "report", Inputs.under(tmp_path, reference=path), progress=False)
+    sec = sections_fem.section_fem_accuracy(rep)
+    tables = [b[1] for b in sec.blocks if b[0] == "table"]
+    text = " ".join(str(b[1]) for b in sec.blocks if b[0] == "p")
+    assert tables[0].rows[0][0] == "tip" and tables[0].rows[0][2] == "1.00"
+    assert "0.500 %" in text and "+1.000 %" in text, text
+    assert "within" in rep.claims[-1].verdict
 
 
 def test_a_diverged_model_gets_no_finite_point(tmp_path):
@@ -179,76 +183,6 @@ def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
     assert "reach" not in sections_control.mpc_settings_text({"mpc_max_rate_V": 5.0, "mpc_reach_gate": False})
 
 
-def test_the_penalty_study_names_the_finest_patch_and_its_move_from_the_reference(tmp_path):
-    """The FEM accuracy section reads ``fem-study``'s penalty CSV when it is there: a row per
-    case, and a sentence with the finest patch's travel change from the reference (taken
-    from the file, not typed); without the file it says the bound covers the mesh only. Broken
-    once: the finest patch chosen by the fewest dofs (the sentence named the 1 mm patch)."""
-    from deapull.workflows.report import sections_fem
-    from deapull.workflows.report.document import Report, Section
-    from deapull.workflows.report.inputs import Inputs
-    study = tmp_path / "fem_study"
-    fields = ["case", "dofs", "points", "wall_s", "newton_its", "travel_mm", "travel_err_pct", "x_mae_pct",
-              "active_points", "pen_nodes_um", "pen_qp_um"]
-    rows = [{"case": "patch-1mm-9x9-k1000", "dofs": 5280, "travel_err_pct": 5.70, "active_points": 4},
-            {"case": "patch-0.5mm-9x9-k1000", "dofs": 8436, "travel_err_pct": 2.57, "active_points": 13},
-            {"case": "shipped-k100", "dofs": 1587, "travel_err_pct": 0.47, "active_points": 1}]
-    write_csv(study / "patch-penalty.csv", [{**{k: 1.0 for k in fields}, **r} for r in rows], fields)
-    rep = Report(tmp_path / "report", Inputs.under(tmp_path, fem_study=study), progress=False)
-    sec = Section("fem-accuracy", "t")
-    sections_fem.penalty_table(rep, sec)
-    tables = [b[1] for b in sec.blocks if b[0] == "table"]
-    text = " ".join(b[1] for b in sec.blocks if b[0] == "p")
-    assert len(tables) == 1 and [r[1] for r in tables[0].rows] == ["× 1,000", "× 1,000", "× 100"]
-    assert "patch-0.5mm-9x9-k1000" in text and "+2.57 %" in text, text
-    claim = rep.claims[-1]
-    assert "+2.57 %" in claim.ours and claim.anchor == "#penalty-1" and claim.outcome == ""
-    empty = Section("fem-accuracy", "t")
-    sections_fem.penalty_table(Report(tmp_path / "r2", Inputs.under(tmp_path / "none"), progress=False), empty)
-    assert "mesh only" in empty.blocks[0][1]
-
-
-def test_a_near_rigid_reference_gives_its_bound_parts_and_the_shipped_error(tmp_path):
-    """With the near-rigid reference (its bound split into the mesh's and the penalty's share,
-    bench/reference/reference.json) the FEM accuracy section states both shares and the shipped
-    default's error from ``bench_fem.json``, and the claim says whether that is within the issue's
-    2 %. Broken once: the shipped error read as a fraction (-0.03 %, within the goal)."""
-    from deapull.workflows.report import sections_fem
-    from deapull.workflows.report.document import Report, Section
-    from deapull.workflows.report.inputs import Inputs
-    study = tmp_path / "fem_study"
-    fields = ["case", "dofs", "points", "wall_s", "newton_its", "travel_mm", "travel_err_pct", "x_mae_pct",
-              "active_points", "pen_nodes_um", "pen_qp_um"]
-    write_csv(study / "patch-penalty.csv", [{**{k: 1.0 for k in fields}, "case": "shipped-k100"}], fields)
-    ref = {"travel_ref_m": 1.3112e-3, "error_bound_rel": 0.0034, "mesh_bound_m": 4.08e-6, "penalty_bound_m": 0.39e-6,
-           "mesh_bound_is": "the two finest levels' difference"}
-    rep = Report(tmp_path / "report", Inputs.under(tmp_path, fem_study=study), progress=False)
-    sec = Section("fem-accuracy", "t")
-    sections_fem.penalty_table(rep, sec, ref, -0.0282)
-    text = " ".join(b[1] for b in sec.blocks if b[0] == "p")
-    assert "0.31 %" in text and "0.03 %" in text and "-2.82 %" in text.replace("−", "-"), text
-    claim = rep.claims[-1]
-    assert "1.3112" in claim.ours and "outside" in claim.verdict
-    # datasets made at the resolved fidelity: their error is the claim's, the fast preview's is beside it
-    rep2 = Report(tmp_path / "report2", Inputs.under(tmp_path, fem_study=study), progress=False)
-    sec2 = Section("fem-accuracy", "t")
-    sections_fem.penalty_table(rep2, sec2, ref, -0.0087, -0.0282, "resolved")
-    text = " ".join(b[1] for b in sec2.blocks if b[0] == "p").replace("−", "-")
-    assert "fidelity `resolved`" in text and "-0.87 %" in text and "fast preview" in text and "-2.82 %" in text, text
-    claim = rep2.claims[-1]
-    assert "(resolved) -0.87 %" in claim.ours.replace("−", "-") and "within" in claim.verdict
-    # the runs beyond the reference's ladder (the committed ones) qualify the verdict: not converged
-    assert "not converged" in claim.verdict and "issue 23: not met" in claim.verdict, claim.verdict
-    # without the penalty study's CSV the near-rigid reference still gives its sentence and its claim
-    # (broken once: the early return of a missing CSV dropped them)
-    rep3 = Report(tmp_path / "report3", Inputs.under(tmp_path, fem_study=tmp_path / "nowhere"), progress=False)
-    sec3 = Section("fem-accuracy", "t")
-    sections_fem.penalty_table(rep3, sec3, ref, -0.0030, -0.0282, "resolved")
-    text = " ".join(b[1] for b in sec3.blocks if b[0] == "p").replace("−", "-")
-    assert "carries the penalty's share" in text and "The reference is near rigid" in text, text
-    assert rep3.claims and "-0.30 %" in rep3.claims[-1].ours.replace("−", "-")
-
-
 def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path):
     """The report's model table shows the scene the datasets were made with: their ``scene_toml``
     matched against the scene file's fidelities (resolved: the tip zone, 11 × 11 points, × 100
@@ -261,7 +195,7 @@ def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path
     from deapull.workflows.report.document import Report
     from deapull.workflows.report.inputs import Inputs
     from tests.conftest import SWEEP
-    for fidelity, want in (("resolved", "resolved"), ("", ""), (None, None)):
+    for fidelity, want in (("preview", "preview"), ("", ""), (None, None)):
         data = tmp_path / f"data_{fidelity}"
         data.mkdir()
         with xr.open_dataset(SWEEP / "C3.nc") as ds:
@@ -275,9 +209,8 @@ def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path
                                                 progress=False))
         text = " ".join(str(b[1]) for b in sec.blocks if b[0] == "p")
         table = " ".join(str(c) for b in sec.blocks if b[0] == "table" for row in b[1].rows for c in row)
-        if want == "resolved":
-            assert "--fidelity resolved" in text and "2 mm tip zone in 4" in table and "11 × 11" in table
-            assert "2.24e+11" in table
-        else:
-            assert "tip zone" not in table and "2.24e+09" in table and "5 × 5" in table
+        if want == "preview":
+            assert "--fidelity preview" in text and "5 × 5" in table and "2.24e+10" in table
+        elif want == "":
+            assert "2 mm tip zone in 4" in table and "11 × 11" in table and "2.24e+11" in table
         assert ("other overrides" in text) == (want is None)

@@ -16,8 +16,8 @@ SCENE = "coin_pull"
 SETUPS = tuple(f"C{i}" for i in range(1, 9))
 #: the coins `make excitation` plays the excitation protocols on
 EXCITATION_SETUPS = ("C1", "C3", "C5", "C7")
-#: the committed converged FEM reference (``make fem-study``: bench/fem_study.py --study reference)
-REFERENCE_JSON = Path(__file__).resolve().parents[2] / "bench" / "reference" / "reference.json"
+#: the committed contact reference (``make fem-study``: studies/contact_reference.toml)
+REFERENCE_JSON = Path(__file__).resolve().parents[2] / "bench" / "reference" / "contact_reference.json"
 
 
 @dataclass(frozen=True)
@@ -83,19 +83,21 @@ class Step:
 
 
 STEPS = (
-    Step("sweep", "mpirun -n 2 deapull sweep --scene coin_pull --fidelity resolved --out {data}",
+    Step("sweep", "mpirun -n 2 deapull sweep --scene coin_pull --out {data}",
          "the 8 FEM datasets C1..C8 (the sweep, the surrogates and control read them)", "data"),
-    Step("report-fields", "deapull solve --scene coin_pull --setup C3 --fidelity resolved --out {out}/report_fields "
+    Step("report-fields", "deapull solve --scene coin_pull --setup C3 --out {out}/report_fields "
          "--fields-every 10", "the displacement fields of one run (pictures and animation)", "fields"),
+    Step("fem-study", "mpirun -n 2 deapull fem-study --study contact_reference --out {out}/fem_study "
+         "--publish bench/reference", "the contact reference: mesh ladders, their orders and bound", "fem_study"),
     Step("bench-fem", "python bench/bench_fem.py --out {bench_fem} --np 2",
          "the FEM's wall time, travel error and sweep time beside ABAQUS (docs/fem_accuracy.md)", "bench_fem"),
-    Step("fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --fidelity resolved --out {fidelity}",
+    Step("fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --out {fidelity}",
          "the error-against-run-time ladder", "fidelity"),
-    Step("stability", "mpirun -n 2 deapull stability --fidelity resolved --out {stability}",
+    Step("stability", "mpirun -n 2 deapull stability --out {stability}",
          "the stiff and extreme cases", "stability"),
     Step("experiments", "deapull experiments --data {data} --out {experiments}",
          "the paper's six experiment sets (Table II, box plot, rollouts)", "experiments"),
-    Step("excitation", "mpirun -n 2 deapull sweep --scene coin_pull --fidelity resolved --setups C1,C3,C5,C7 "
+    Step("excitation", "mpirun -n 2 deapull sweep --scene coin_pull --setups C1,C3,C5,C7 "
          "--protocols excitation --out {excitation}", "the FEM under ramp-hold-ramp, triangle, release and "
          "random voltages", "excitation"),
     Step("experiments-protocols", "deapull experiments-protocols --data {data} --excitation {excitation} "
@@ -104,7 +106,7 @@ STEPS = (
     Step("control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 "
          "--noise 0,1e-5,1e-4,1e-3 --mpc-approach-mm 0.1 --mpc-no-reach-gate --out {control}",
          "the closed-loop episodes (Fig. 6)", "control"),
-    Step("control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --fidelity resolved --episodes 1 "
+    Step("control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --episodes 1 "
          "--noise 1e-4 --phi-prior coins --mpc-model out/models/fa_mem --mpc-no-infer --mpc-standoff 2 "
          "--mpc-innovation-window 25 --mpc-max-rate 0.4 --max-steps 4000 --unreachable report --out "
          "{control_fem}", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)",
@@ -121,7 +123,7 @@ def step_done(name: str, inputs: Inputs) -> bool:
         return all(dataset.is_complete(inputs.data / f"{s}.nc") for s in SETUPS)
     if name == "report-fields":
         return inputs.fields.is_file() and dataset.is_complete(fields_run(inputs.fields))
-    files = {"fidelity": inputs.fidelity / "fidelity.csv", "stability": inputs.stability / "stability.csv",
+    files = {"fem-study": Path(inputs.reference), "fidelity": inputs.fidelity / "fidelity.csv", "stability": inputs.stability / "stability.csv",
              "experiments": inputs.experiments / "experiments.csv", "control": inputs.control / "control.csv",
              "control-fem": inputs.control_fem / "control.csv",
              "bench-control": inputs.bench_control / "bench_control.json",

@@ -7,11 +7,11 @@ The points (:func:`error_time_points`):
 * **FEM ladder** — ``fidelity.csv`` (``make fidelity``): every rung's wall time and its x(t) MAE
   and coin-travel error in % of the reference rung's travel (the reference rung itself: error 0
   by definition, not a point on a log axis);
-* **FEM benchmark** — ``bench_fem.json`` (``make bench-fem``): the shipped default (and the old
-  default) on one core against the committed contact-ladder reference (not converged beyond its ladder);
-* **contact convergence** — ``bench/reference/reference.json`` (``make fem-study``): each level of
-  the reference's own ladder, its travel against the finest level's; the finest level is drawn at
-  its error bound (▼: its error is at most that);
+* **FEM benchmark** — ``bench_fem.json`` (``make bench-fem``): the data fidelity and the preview
+  on one core, their x(0.95 s) against the committed contact reference;
+* **contact convergence** — ``bench/reference/contact_reference.json`` (``make fem-study``): each
+  case of the contact ladders, its x(0.95 s) against the ladders' Richardson value; the bound of
+  that value is drawn at the finest case's time (▼: the reference's error is at most that);
 * **surrogates** — ``experiments.csv`` (``make experiments``): per model the mean over the sets of
   the 1 s rollout time and of the x(t) MAE in % of the travel; a model that diverged on any set
   has no finite error (drawn at the top edge, marked "diverged"); and the surrogate rows of the
@@ -35,9 +35,8 @@ import numpy as np
 
 from deapull.paper import ABAQUS_S
 from deapull.workflows.report.document import Report, Section, Table
-from deapull.workflows.fem_study import ladder_gap, with_beyond_the_ladder
 from deapull.workflows.fidelity import ranks_suffix
-from deapull.workflows.report.plots import BOUND, GAP, TRAVEL, X_MAE, plot_error_time
+from deapull.workflows.report.plots import BOUND, TRAVEL, X_MAE, plot_error_time
 from deapull.workflows.report.tabular import csv_text, fmt, num, read_csv, run_config
 
 POINT_COLUMNS = ("group", "label", "metric", "wall_s", "error_pct", "status", "make", "source")
@@ -81,41 +80,30 @@ def fidelity_points(path: Path) -> list[dict]:
 
 
 def bench_points(path: Path) -> list[dict]:
-    """``bench_fem.json``: each timed run against the committed reference (fractions → %)."""
+    """``bench_fem.json``: each timed run's x(0.95 s) against the committed contact reference."""
     res = json.loads(path.read_text())
     out = []
     for label, r in res.items():
         if label in ("sweep", "reference") or not isinstance(r, dict):
             continue
-        for metric, key in ((X_MAE, "x_mae"), (TRAVEL, "travel_err")):
-            if r.get(key) is not None:
-                out.append(_point("FEM benchmark", label, metric, r.get("wall_s"), 100 * abs(r[key]), "ok", "", path))
+        if r.get("error_percent") is not None:
+            out.append(_point("FEM benchmark", label, TRAVEL, r.get("wall_s"), abs(r["error_percent"]), "ok", "", path))
     return out
 
 
 def reference_points(path: Path) -> list[dict]:
-    """The contact-convergence levels of the committed reference: travel error against the finest
-    level; the finest level at its own error bound."""
-    ref = with_beyond_the_ladder(json.loads(path.read_text()), path.parent)
-    travel_ref, bound, gap = ref["travel_ref_m"], ref.get("error_bound_rel"), ladder_gap(ref)
-    out = []
-    for case, travel, wall in zip(ref.get("cases", []), ref.get("travel_m", []), ref.get("wall_s", [])):
-        err = 100 * abs(travel / travel_ref - 1)
-        if err > 0:
-            out.append(_point("contact convergence", case, TRAVEL, wall, err, "ok", "", path))
-        elif bound is not None and gap is not None:
-            out.append(_point("contact convergence", case, BOUND, wall, 100 * bound,
-                              "reference (its ladder's bound: the tip zone and the penalty only)", "", path))
-            out.append(_point("contact convergence", case, GAP, wall, 100 * abs(gap["least_rel"]),
-                              f"reference (refined in the layers and the underside, the travel moves "
-                              f"{100 * gap['least_rel']:+.1f} % to {100 * gap['most_rel']:+.1f} %: its error is "
-                              "likely at least this)", "", path))
-        elif bound is not None:
-            out.append(_point("contact convergence", case, BOUND, wall, 100 * bound,
-                              "reference (its error is at most this bound)", "", path))
-        else:
-            out.append(_point("contact convergence", case, "", wall, 0.0, "reference (its own error unknown)", "",
-                              path))
+    """The contact study's cases: x(0.95 s) against the ladders' Richardson value; the bound at the
+    wall time of the costliest case."""
+    ref = json.loads(path.read_text())
+    x_ref, out = ref.get("reference_x_at_t_mm"), []
+    for case, c in ref.get("cases", {}).items():
+        if x_ref and c.get("wall_s"):
+            out.append(_point("contact convergence", case, TRAVEL, c["wall_s"], 100 * abs(c["x_at_t_mm"] / x_ref - 1),
+                              "ok", "", path))
+    walls = [c["wall_s"] for c in ref.get("cases", {}).values() if c.get("wall_s")]
+    if walls and ref.get("bound_percent") is not None:
+        out.append(_point("contact convergence", "reference", BOUND, max(walls), ref["bound_percent"],
+                          "reference (its error is at most this bound)", "", path))
     return out
 
 
@@ -201,9 +189,9 @@ def section_error_time(rep: Report) -> Section:
         rep.source(Path(src), sec)
     sec.p("Left: the wall time of one 1 s simulation of coin_pull C3 (log) against its error in % of the coin's "
           "travel (log): ● the x(t) MAE, ○ the coin-travel error, each against that study's reference (the fidelity "
-          "ladder's finest rung; for the benchmark and the contact-convergence levels, the committed "
-          "reference, `bench/reference/reference.json`, whose own ladder's bound is the ▼ and which meshes refined "
-          "beyond that ladder move by the ▲ or more). Surrogates: the mean over the "
+          "ladder's finest rung; for the benchmark and the contact study's cases, x(0.95 s) against the "
+          "committed reference, `bench/reference/contact_reference.json`, whose own bound is the ▼). "
+          "Surrogates: the mean over the "
           "six sets of the 1 s rollout time and of the x(t) MAE on the test setup; a model that diverged on any set "
           "has **no** error, it sits on the top edge marked *diverged*. The paper's ABAQUS run (1 s in "
           f"{ABAQUS_S:g} s) is a vertical line: its error is not reported. Wall times were measured on shared "

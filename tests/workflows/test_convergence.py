@@ -1,0 +1,74 @@
+"""The convergence study's numbers (workflows/convergence.py) and the generated tables
+(workflows/docs_tables.py) against cases with known answers."""
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from deapull.errors import InputError
+from deapull.workflows import convergence, docs_tables
+from tests.conftest import REPO
+
+
+@pytest.mark.parametrize("p", [0.8, 2.0, 3.5])
+def test_a_ladder_of_a_known_power_law_gives_its_order_and_limit(p):
+    """f(h) = 1.25 + 0.1 h^p at h = 1, 1/2, 1/4: the observed order is p, the Richardson value
+    1.25, and the fine level's GCI is F_s times its true relative error. Broken once with the
+    ladder taken fine to coarse: the order came out negative."""
+    f = [1.25 + 0.1 * h ** p for h in (1.0, 0.5, 0.25)]
+    got = convergence.observed(*f, 2.0)
+    assert got["observed_order"] == pytest.approx(p, rel=1e-10)
+    assert got["richardson"] == pytest.approx(1.25, rel=1e-12)
+    assert got["gci_percent"] == pytest.approx(1.25 * 100 * abs(f[2] - 1.25) / f[2], rel=1e-10)
+    assert convergence.order_of_differences(abs(f[1] - f[0]), abs(f[2] - f[1]), 2.0) == pytest.approx(p)
+
+
+def test_a_ladder_that_turns_back_has_no_order():
+    got = convergence.observed(1.0, 1.1, 1.05, 2.0)
+    assert not got["monotone"] and math.isnan(got["observed_order"]) and math.isnan(got["gci_percent"])
+
+
+def test_a_study_naming_a_case_it_lacks_is_refused_before_any_run(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[study]\nscene = "coin_pull"\nsetup = "C3"\ntime_s = 0.95\n[cases]\na = []\nb = []\n'
+                   '[ladders.x]\ncases = ["a", "b", "c"]\nratio = 2\n')
+    with pytest.raises(InputError, match=r"ladders\.x\.cases"):
+        convergence.load_study(bad)
+    with pytest.raises(InputError, match="unknown study"):
+        convergence.load_study("no_such_study")
+    shipped = convergence.load_study("contact_reference")
+    assert {lad["cases"][1] for lad in shipped["ladders"].values()} == {"middle"}   # one shared middle case
+
+
+def test_the_committed_reference_bound_is_its_rungs_bound():
+    """bench/reference/contact_reference.json's bound recomputed from its rungs' stored x(0.95 s)
+    and the step's change (the JSON is what `make fem-study` publishes). Broken once with one
+    rung's value edited in the JSON: it failed."""
+    path = REPO / "bench" / "reference" / "contact_reference.json"
+    if not path.is_file():
+        pytest.fail(f"{path} is missing: make fem-study publishes it")
+    result = json.loads(path.read_text())
+    assert convergence.bound_from_rungs(result) == pytest.approx(result["bound_percent"], rel=1e-9)
+    for lad in result["ladders"].values():
+        assert lad["x_at_t_mm"] == [result["cases"][n]["x_at_t_mm"] for n in lad["cases"]]
+
+
+def test_the_pages_tables_are_their_results_files():
+    """Every results block of the README and docs/ is what its file renders to (deapull docs)."""
+    assert docs_tables.stale_pages() == []
+
+
+def test_a_results_block_is_rewritten_from_its_file(tmp_path):
+    (tmp_path / "bench" / "reference").mkdir(parents=True)
+    page = tmp_path / "README.md"
+    page.write_text("a\n<!-- results:headline -->\nold\n<!-- /results:headline -->\nb\n")
+    assert "is missing" in docs_tables.render(page.read_text(), tmp_path)
+    result = {"time_s": 0.95, "bound_percent": 0.5, "default_error_percent": 1.0, "default_case": "default",
+              "cases": {"default": {"wall_s": 60.0, "dofs": 100, "x_end_mm": -1.2, "min_points": 25}}}
+    (tmp_path / "bench" / "reference" / "contact_reference.json").write_text(json.dumps(result))
+    text = docs_tables.render(page.read_text(), tmp_path)
+    assert "| 60 s at 100 dofs | 130 s (ABAQUS) |" in text and "old" not in text and text.endswith("\nb\n")
+    with pytest.raises(KeyError, match="nope"):
+        docs_tables.render("<!-- results:nope -->\nx\n<!-- /results:nope -->", tmp_path)
