@@ -46,7 +46,8 @@ TINY_MESH = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004")
 #: contact points (the fast meshes that the FEM's machinery tests are written for; each test names what
 #: it changes)
 SHARP = ("dea.free_edge_radius_m=0.0", "coin.edge_radius_m=0.0003", "coin.edge_shape='circular'",
-         "mesh.tip_zone_m=0.0", "mesh.rim_band_width_m=0.0", "mesh.rim_band_m=[]", "mesh.n_length=16",
+         "mesh.tip_zone_m=0.0", "mesh.rim_band_width_m=0.0", "mesh.rim_band_m=[]", "mesh.free_edge_divisions=2",
+         "mesh.n_length=16",
          "mesh.n_passive=1", "contact.quadrature_degree=8", "contact.penalty_N_m3=2.24e9", "table.penalty_N_m3=1e11",
          "solver.linear_solver='umfpack'")
 COIN_SCENES = ("coin_pull", "coin_release")

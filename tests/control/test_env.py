@@ -11,7 +11,7 @@ import pytest
 from deapull.control.env import POLICY_INFO, CoinPushEnv, policy_view
 from deapull.errors import InputError
 from tests.control.conftest import FIXTURE_TARGET_M, ParkedPlant, RatchetPlant
-from tests.conftest import TINY_MESH
+from tests.conftest import SHARP, TINY_MESH
 
 
 @pytest.mark.parametrize("noise", [0.0, 1e-3])
@@ -209,7 +209,7 @@ def test_fem_plant_episode_moves_the_coin_as_the_fems_own_stepping(tmp_path):
     ramp = int(V0 / 0.5)                       # steps of the env's start ramp
     table = ("load.protocol='table'", f"load.table_t_s=[0, {ramp * 1e-3}, {(ramp + n) * 1e-3}]",
              f"load.table_V=[0, {V0}, {V0 + n * dV}]", f"load.end_time_s={(ramp + n) * 1e-3}")
-    scene = scenes.load("coin_pull", setup="C1", overrides=(*TINY_MESH, *table))
+    scene = scenes.load("coin_pull", setup="C1", overrides=(*SHARP, *TINY_MESH, *table))
     plant = FEMPlant(scene, work_dir=tmp_path, name="fem:C1")
     env = CoinPushEnv(plant, dv_max_V=dV, start_voltage_V=V0, max_steps=n, terminate_on_success=False)
     episode = run_episode(env, HeuristicPolicy(step_V=dV), seed=0, step_limit=n, hold_steps=0)

@@ -22,8 +22,9 @@ from tests.fem_solver.conftest import balance_bound_N
 BENDING = ("gravity_m_s2=0", "load.voltage_max_V=40", "time.dt_initial_s=0.5", "time.dt_max_s=0.5",
            "mesh.n_length=4", "mesh.n_width=1", "dea.width_m=0.004")
 # a short, cheap coin protocol: the same ramp compressed into 40 ms, a tiny mesh
-SHORT_COIN = (*SHARP, "load.end_time_s=0.04", "load.ramp_time_s=0.04", "time.dt_max_s=0.004", "time.dt_initial_s=0.004",
-              "mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004")
+SHORT = ("load.end_time_s=0.04", "load.ramp_time_s=0.04", "time.dt_max_s=0.004", "time.dt_initial_s=0.004",
+         "mesh.n_length=8", "mesh.n_width=1", "mesh.coin_size_m=0.004")
+SHORT_COIN = (*SHARP, *SHORT)
 
 
 def timoshenko_tip_deflection(sc, voltage):
@@ -113,7 +114,7 @@ def test_blocked_force_presses_the_stop(tmp_path):
     # 2 ms steps: with 4 ms ones the tip, 0.27 mm into the stop's rim at 386 V, is reached on
     # a path from which plain Newton cycles at ‖R‖ ≈ 5e-2 for every step size (the path
     # depends on how the early cut-backs were taken; the old loop happened to pass)
-    sc = scenes.load("blocked_force", overrides=(*SHORT_COIN, "time.dt_max_s=0.002", "time.dt_initial_s=0.002"))
+    sc = scenes.load("blocked_force", overrides=(*SHORT, "time.dt_max_s=0.002", "time.dt_initial_s=0.002"))
     ds = xr.open_dataset(solve_scene(sc, tmp_path, progress=False))
     assert np.all(ds.x.values == 0)
     assert ds.Fy.values[-1] > ds.Fy.values[0] > 0     # the actuated tip presses harder on the stop

@@ -21,7 +21,7 @@ from deapull.workflows.report import assemble, pictures
 from deapull.workflows.report.document import Claim, Report, Section
 from deapull.workflows.report.tabular import read_csv
 from deapull.workflows.report.check import BrowserUnavailable, check_page, find_browser
-from tests.conftest import REPO, SWEEP
+from tests.conftest import REPO, SHARP, SWEEP
 
 ALL_STEPS = [s.name for s in report.STEPS]
 
@@ -94,7 +94,7 @@ def test_missing_hints_name_the_folders_the_report_reads():
     make, command = report.STEP["excitation"].hint(report.Inputs.under("out/resolved", "data2"))
     assert make == "make excitation DATA=data2" and command.endswith("--out data2/excitation")
     assert report.STEP["sweep"].hint(report.Inputs()) == (
-        "make sweep", "mpirun -n 2 deapull sweep --scene coin_pull --fidelity resolved --out data")
+        "make sweep", "mpirun -n 2 deapull sweep --scene coin_pull --out data")
     for step in report.STEPS:
         make, command = step.hint(moved)
         assert make.startswith(step.make) and "{" not in command, (make, command)
@@ -191,23 +191,14 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
         assert src["anchor"] in page.ids and len(src["sha256"]) == 12
 
 
-def test_fem_section_states_the_references_own_error_or_that_it_is_unknown(tmp_path):
+def test_fem_section_names_a_missing_contact_reference_and_gives_the_bench_against_it(tmp_path):
     data = _sweep(tmp_path, report.SETUPS)
     inputs = _inputs(tmp_path, data)
     _fake_studies(inputs)
     report.build(tmp_path / "r1", inputs, progress=False)
-    assert "The reference's own error is not known" in (tmp_path / "r1" / "report.md").read_text()
-    bench = inputs.bench_fem / "bench_fem.json"
-    res = json.loads(bench.read_text())
-    res["reference"]["error_bound_rel"] = 0.0123
-    bench.write_text(json.dumps(res))
-    report.build(tmp_path / "r2", inputs, progress=False)
-    text = (tmp_path / "r2" / "report.md").read_text()
-    assert "The reference's own error bound: ± 1.23 %" in text and "not known" not in text
-    # the runs refined beyond the ladder (the committed ones: this bench's reference has none) qualify it
-    beyond = text.split("The reference's own error bound: ± 1.23 %")[1].split("\n")[0].replace("−", "-")
-    assert "tip zone, the rim band, the penalty) only" in beyond and "-5.0 % to -8.9 %" in beyond, beyond
-    assert "no bound ≤ 1 % (issue 23's goal) can be stated" in beyond
+    text = (tmp_path / "r1" / "report.md").read_text()
+    assert "the contact reference" in text and "make fem-study" in text
+    assert "data fidelity (scene file) | 10.0 | 13.00× |" in text and "+1.60 %" in text.replace("−", "-")
 
 
 def test_rebuild_drops_images_no_longer_shown(tmp_path):
@@ -303,10 +294,11 @@ def _fake_studies(inputs: report.Inputs) -> None:
     _png(inputs.control_fem / "position_fem_C1_noise0.0001.png")
     inputs.bench_fem.mkdir(parents=True)
     (inputs.bench_fem / "bench_fem.json").write_text(json.dumps(
-        {"shipped default": {"wall_s": 10.0, "points": 722, "dofs": 1587, "newton_its": 4500, "travel_mm": 1.326,
-                             "travel_err": 0.016, "x_mae": 0.01},
+        {"data fidelity (scene file)": {"wall_s": 10.0, "points": 722, "dofs": 1587, "newton_its": 4500,
+                                        "x_at_t_mm": -1.116, "travel_mm": 1.326, "error_percent": 1.6,
+                                        "min_contact_points": 25},
          "sweep": {"wall_s": 70.0, "np": 2},
-         "reference": {"label": "a finer run", "travel_ref_m": 1.305e-3}}))
+         "reference": {"file": "contact_reference.json", "x_at_t_mm": -1.1, "time_s": 0.95, "bound_percent": 0.5}}))
     inputs.protocols.mkdir(parents=True)
     (inputs.protocols / "protocols.md").write_text(
         "# Held-out protocols\n\n| model | ramp | triangle |\n|---|---|---|\n| f (tip memory) | 0.06 | 0.16 |\n"
@@ -565,7 +557,7 @@ def _abs_z_by_quadrature(s3, frame: int) -> float:
 @pytest.mark.slow
 def test_pictures_from_a_real_solve(tmp_path):
     """The solver's own XDMF (tiny mesh, short ramp) renders: the format is what we read."""
-    tiny = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004", "load.end_time_s=0.1",
+    tiny = (*SHARP, "mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004", "load.end_time_s=0.1",
             "load.ramp_time_s=0.1", "time.dt_max_s=0.02", "time.dt_initial_s=0.02", "load.voltage_max_V=200")
     folder = tmp_path / "out" / "report_fields"
     proc = _cli("solve", "--scene", "coin_pull", "--setup", "C3", "--out", str(folder), "--fields-every", "2",
@@ -573,6 +565,15 @@ def test_pictures_from_a_real_solve(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     s3 = pictures.load_scene3d(folder / "C3_fields.xdmf")
     assert len(s3.fields.times) >= 3 and s3.umax_mm > 0.1
+    # the node order the pictures assume (VTK's) is the one dolfinx wrote: on these box cells its six
+    # faces hold the nodes that the coordinates put on them (broken once with two edge midpoints
+    # swapped in the table: it failed)
+    f = s3.fields
+
+    def faces(g):
+        return {frozenset(face.ravel()) for face in (g[0], g[-1], g[:, 0], g[:, -1], g[:, :, 0], g[:, :, -1])}
+    for cell in f.cells:
+        assert faces(pictures._vtk_lattice(cell, 3)) == faces(pictures._hex_lattice(f.points, cell, 3))
     # coin_pull is a half model (z >= 0, 4 x 1 x (1 + 1) hexahedra) drawn mirrored: the outer faces
     # of a 4 x 2 x 2 block, each drawn as 4 sub-faces, the mid-plane dropped
     assert s3.mirrored and len(s3.polys) == 4 * 2 * (4 * 2 + 4 * 2 + 2 * 2)

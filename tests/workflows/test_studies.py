@@ -13,14 +13,14 @@ MPI = pytest.importorskip("mpi4py.MPI")
 from deapull.io import cell
 from deapull.workflows import fidelity, runner, stability
 from deapull.workflows.runner import Case, run_cases
-from tests.conftest import REPO, mpirun
+from tests.conftest import REPO, SHARP, mpirun
 
 pytestmark = pytest.mark.fem
 
 # a tiny mesh and a short protocol: 0 -> 200 V in 0.1 s, base step 0.02 s ("full": the scene's
 # steps); both stages happen: the coin starts to slide at ~120 V and travels ~0.19 mm toward -x
 # (27 points, a few cut-backs at the onset)
-TINY = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004", "load.end_time_s=0.1",
+TINY = (*SHARP, "mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004", "load.end_time_s=0.1",
         "load.ramp_time_s=0.1", "time.dt_max_s=0.02", "time.dt_initial_s=0.02", "load.voltage_max_V=200")
 MOVES_MM = 0.1     # the coin travels more than this under TINY (measured 0.19 mm)
 
@@ -332,52 +332,50 @@ def test_a_crashed_case_is_solved_again_on_resume_a_failed_one_is_not(tmp_path):
 
 
 def test_stability_at_a_named_fidelity_applies_it_to_the_cases_whose_scene_defines_it():
-    """``deapull stability --fidelity resolved`` (no solve here): coin_pull's cases carry the
-    fidelity's overrides first, so the penalty cases scale the resolved penalty; the free
+    """``deapull stability --fidelity preview`` (no solve here): coin_pull's cases carry the
+    fidelity's overrides first, so the penalty cases scale the preview's penalty; the free
     pull-in (free_bending defines none) runs as written and says so; an unknown fidelity is
     refused naming the allowed ones. Broken once: the fidelity dropped from the cases (only the
     base scene had it)."""
     from deapull import scene as scenes
     from deapull.errors import InputError
-    resolved = dict(o.split("=", 1) for o in scenes.fidelity_overrides("coin_pull", "resolved"))
-    penalty = float(resolved["contact.penalty_N_m3"])
-    cases = {c.name: c for c in stability.stability_cases(fidelity="resolved")}
+    preview = dict(o.split("=", 1) for o in scenes.fidelity_overrides("coin_pull", "preview"))
+    penalty = float(preview["contact.penalty_N_m3"])
+    cases = {c.name: c for c in stability.stability_cases(fidelity="preview")}
     base = cases["baseline"]
-    assert all(o in base.overrides for o in scenes.fidelity_overrides("coin_pull", "resolved"))
+    assert all(o in base.overrides for o in scenes.fidelity_overrides("coin_pull", "preview"))
     assert f"contact.penalty_N_m3={penalty * 100.0!r}" in cases["penalty-x100"].overrides
     free = cases["pullin-free-bending"]
     assert not any(o.startswith("mesh.tip_zone") for o in free.overrides)
     assert "as written" in free.description and "as written" not in base.description
     plain = {c.name: c for c in stability.stability_cases()}
-    assert not any(o.startswith("mesh.tip_zone") for o in plain["baseline"].overrides)
-    with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: resolved"):
+    assert not any(o.startswith("contact.quadrature_degree=8") for o in plain["baseline"].overrides)
+    with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: preview"):
         stability.stability_cases(fidelity="finest")
 
 
 def test_the_ladder_at_a_named_fidelity_refines_that_fidelity_in_every_rung():
-    """``deapull fidelity --fidelity resolved`` (no solve here): every rung is the resolved scene
-    changed in its own knobs, so the reference is resolved's mesh at level + 1 and the coarse
-    rung halves resolved's 8 graded elements, not the file's 16; the user's --set still wins;
-    an unknown fidelity is refused naming the allowed ones. Broken once: with the fidelity not
-    applied in ladder_cases (as run_ladder had before it took the name), the rungs were the fast
-    preview's and this failed."""
+    """``deapull fidelity --fidelity preview`` (no solve here): every rung is the preview scene
+    changed in its own knobs, so the reference is its mesh at level + 1 and the coarse rung halves
+    its 8 elements along the length; the user's --set still wins; an unknown fidelity is refused
+    naming the allowed ones. Broken once: with the fidelity not applied in ladder_cases, the rungs
+    were the file's and this failed."""
     from deapull import scene as scenes
     from deapull.errors import InputError
-    resolved = scenes.load("coin_pull", setup="C3", overrides=scenes.fidelity_overrides("coin_pull", "resolved"))
+    preview = scenes.load("coin_pull", setup="C3", overrides=scenes.fidelity_overrides("coin_pull", "preview"))
     cases = {c.name: c for c in fidelity.ladder_cases("coin_pull", "C3", "quick", ("coin.mu_b=0.3",),
-                                                      fidelity="resolved")}
+                                                      fidelity="preview")}
     assert len(cases) == len(fidelity.LADDER)
 
     def scene(name):
         return scenes.load("coin_pull", setup="C3", overrides=cases[name].overrides)
     ref, coarse, shipped = scene(fidelity.REFERENCE), scene("hex-Q2-mixed-coarse"), scene(fidelity.SHIPPED)
-    assert ref.mesh.level == resolved.mesh.level + 1 and ref.mesh.tip_zone_m == resolved.mesh.tip_zone_m
-    assert ref.contact.penalty_N_m3 == resolved.contact.penalty_N_m3 and ref.time.dt_max_s == 0.005
-    assert coarse.mesh.n_length == resolved.mesh.n_length // 2 == 4
-    assert shipped.time.dt_max_s == resolved.time.dt_max_s and shipped.coin.mu_b == 0.3
-    plain = {c.name: c for c in fidelity.ladder_cases("coin_pull", "C3", "quick", only=["hex-Q2-mixed-coarse"])}
-    assert scenes.load("coin_pull", setup="C3", overrides=plain["hex-Q2-mixed-coarse"].overrides).mesh.n_length == 8
-    with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: resolved"):
+    assert ref.mesh.level == preview.mesh.level + 1 and ref.mesh.tip_zone_m == preview.mesh.tip_zone_m
+    assert ref.contact.penalty_N_m3 == preview.contact.penalty_N_m3 and ref.time.dt_max_s == 0.005
+    assert coarse.mesh.n_length == preview.mesh.n_length // 2 == 4
+    assert shipped.time.dt_max_s == preview.time.dt_max_s and shipped.coin.mu_b == 0.3
+    assert shipped.contact.quadrature_degree == 8 == preview.contact.quadrature_degree
+    with pytest.raises(InputError, match="fidelity = 'finest'.*allowed: preview"):
         fidelity.ladder_cases("coin_pull", "C3", fidelity="finest")
 
 

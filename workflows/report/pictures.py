@@ -113,8 +113,20 @@ def read_fields(xdmf) -> Fields:
     return Fields(xdmf, points, cells, cell_type, np.array([t for t, _ in frames]), tuple(k for _, k in frames))
 
 
+#: lattice positions (x, y, z in {0, .., n-1}) of the nodes of VTK's hexahedra, the order of the XDMF
+#: that dolfinx writes: 8 corners, then (27 nodes) 12 edge midpoints, 6 face centres and the centre
+_VTK_HEX = {
+    8: ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)),
+    27: ((0, 0, 0), (2, 0, 0), (2, 2, 0), (0, 2, 0), (0, 0, 2), (2, 0, 2), (2, 2, 2), (0, 2, 2),
+         (1, 0, 0), (2, 1, 0), (1, 2, 0), (0, 1, 0), (1, 0, 2), (2, 1, 2), (1, 2, 2), (0, 1, 2),
+         (0, 0, 1), (2, 0, 1), (2, 2, 1), (0, 2, 1),
+         (0, 1, 1), (2, 1, 1), (1, 0, 1), (1, 2, 1), (1, 1, 0), (1, 1, 2), (1, 1, 1)),
+}
+
+
 def _hex_lattice(points: np.ndarray, cell: np.ndarray, n: int) -> np.ndarray:
-    """(n, n, n) array of the cell's node ids by position in its (axis-aligned) reference box."""
+    """(n, n, n) array of the cell's node ids by position in its (axis-aligned) reference box,
+    indexed by x, y, z."""
     X = points[cell]
     lo, hi = X.min(0), X.max(0)
     idx = np.rint((X - lo) / np.where(hi > lo, hi - lo, 1.0) * (n - 1)).astype(int)
@@ -123,6 +135,16 @@ def _hex_lattice(points: np.ndarray, cell: np.ndarray, n: int) -> np.ndarray:
     if (grid < 0).any():
         raise InputError("field mesh: a hexahedron is not an axis-aligned box in the reference configuration; "
                          "cannot place its nodes")
+    return grid
+
+
+def _vtk_lattice(cell: np.ndarray, n: int) -> np.ndarray:
+    """(n, n, n) array of the cell's node ids by their place in its reference cube, from VTK's node
+    order (the XDMF that dolfinx writes): the faces of any hexahedron, curved ones too (the rounded
+    free edge's O-grid), in the cell's own axes."""
+    idx = np.array(_VTK_HEX[len(cell)])
+    grid = np.empty((n, n, n), dtype=np.int64)
+    grid[idx[:, 0], idx[:, 1], idx[:, 2]] = cell
     return grid
 
 
@@ -136,7 +158,10 @@ def boundary_faces(points: np.ndarray, cells: np.ndarray, cell_type: str) -> lis
             n = {8: 2, 27: 3}.get(len(cell))
             if n is None:
                 raise InputError(f"field mesh: hexahedra of {len(cell)} nodes are not supported (8 or 27)")
-            g = _hex_lattice(points, cell, n)
+            try:
+                g = _hex_lattice(points, cell, n)
+            except InputError:     # a curved cell (the rounded free edge's O-grid): its VTK node order
+                g = _vtk_lattice(cell, n)
             faces = [g[0], g[-1], g[:, 0], g[:, -1], g[:, :, 0], g[:, :, -1]]
             for f in faces:
                 quads = [(f[a, b], f[a + 1, b], f[a + 1, b + 1], f[a, b + 1]) for a in range(n - 1)

@@ -24,8 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from deapull import scene as scenes
+from deapull.errors import InputError
 from deapull.geometry import rounded_cylinder_distance
 from deapull.workflows.report.pictures import (STAGES, CoinGeometry, Colouring, Scene3D, _coin_x_mm, _hex_lattice,
+                                               _vtk_lattice,
                                                coin_outline_mm, colouring, draw_table, frame_title, plt, save_png)
 from matplotlib.collections import PolyCollection  # noqa: E402  (after pictures chose the Agg backend)
 from matplotlib.patches import Circle, Polygon  # noqa: E402
@@ -87,9 +89,15 @@ def underside_faces(s: Scene3D, y_m: float) -> np.ndarray:
     if not f.cell_type.lower().startswith("hexahedron"):
         return np.zeros((0, 1, 1), dtype=np.int64)
     n = {8: 2, 27: 3}[f.cells.shape[1]]
-    faces = [_hex_lattice(f.points, c, n)[:, 0, :] for c in f.cells]
     tol = 1e-9 * float(np.ptp(f.points[:, 1]) or 1.0)
-    return np.array([g for g in faces if np.all(np.abs(f.points[g, 1] - y_m) <= tol)], dtype=np.int64)
+    faces = []
+    for c in f.cells:
+        try:
+            faces.append(_hex_lattice(f.points, c, n)[:, 0, :])
+        except InputError:      # a curved cell (the rounded free edge): not a flat underside face
+            continue
+    return np.array([g for g in faces if np.all(np.abs(f.points[g, 1] - y_m) <= tol)], dtype=np.int64).reshape(
+        -1, n, n)
 
 
 def underside_samples(s: Scene3D, frame: int, degree: int, rule: str) -> np.ndarray:
@@ -130,8 +138,11 @@ def plane_faces(s: Scene3D, z_m: float = 0.0) -> np.ndarray:
     tol = 1e-9 * float(np.ptp(f.points[:, 2]) or 1.0)
     seen, quads = set(), []
     for cell in f.cells:
-        g = _hex_lattice(f.points, cell, n)
-        for face in (g[:, :, 0], g[:, :, -1]):
+        try:
+            g = _hex_lattice(f.points, cell, n)
+        except InputError:         # a curved cell (the rounded free edge's O-grid): its VTK node order
+            g = _vtk_lattice(cell, n)
+        for face in (g[0], g[-1], g[:, 0], g[:, -1], g[:, :, 0], g[:, :, -1]):
             key = frozenset(face.ravel().tolist())
             if key in seen or not np.all(np.abs(f.points[face, 2] - z_m) <= tol):
                 continue
