@@ -331,3 +331,54 @@ def test_a_ten_times_stiffer_penalty_only_takes_its_compliance_out(tmp_path):
     assert F10 == pytest.approx(F1, rel=1e-2)                 # measured +0.14 %
     assert 0.1 - 1e-3 <= d10 / d1 <= 10 ** -0.5               # measured 0.143
     assert uy10 - uy1 == pytest.approx(d1 - d10, rel=0.25)    # measured 3.18 µm against 3.03 µm
+
+
+# --- the rounded free edge ---------------------------------------------------------------
+
+#: the DEA's free bottom edge rounded (r = 0.5 mm, its O-grid at 4 elements per half arc) over a
+#: flat stop (radius 10 km, a 1 µm rim: the whole DEA lies over its top face)
+EDGE_R = 5e-4
+FLAT_STOP = ("stop.radius_m=1e4", "stop.edge_radius_m=1e-6", "stop.center_from_tip_m=0.0",
+             f"dea.free_edge_radius_m={EDGE_R!r}", "mesh.n_length=2", "mesh.tip_zone_m=0.002",
+             "mesh.tip_zone_divisions=3", "mesh.free_edge_divisions=4", "mesh.n_width=1", "mesh.symmetry='half_z'",
+             "contact.quadrature_degree=20", "table.height_m=-1.0")
+
+
+def _cylinder_on_winkler(k_n, width, R, d):
+    """Force of a cylinder of radius R pressed d into a Winkler foundation (penetration measured
+    normal to the flat), integrated over the cylinder's surface: w k_n R ∫ (d − R + R cos φ) dφ
+    over |φ| < φ_m, cos φ_m = 1 − d/R; to leading order (4/3) k_n w √(2R) d^{3/2}."""
+    phi = math.acos(1 - d / R)
+    return 2 * k_n * width * R * ((d - R) * phi + R * math.sin(phi))
+
+
+@pytest.mark.parametrize("tilt_deg", [20.0, 45.0])
+def test_the_rounded_free_edge_pressed_into_a_flat_follows_the_cylinder_law(tmp_path, tilt_deg):
+    """The DEA tilted nose-down by θ (so that the lowest point of its rounded edge lies on the arc)
+    and pressed d = 10 and 20 µm into a flat stop: only the arc touches, the force is that of a
+    cylinder of the edge's radius on the penalty foundation, its exponent 3/2, and it pushes straight
+    down. This checks the O-grid's arc (second-order geometry) and the contact points pushed through
+    the curved cells. Broken twice: with the facet points mapped by the facet's vertices only (off
+    the arc), the deepest point's depth failed; with each half of the arc meshed as its chord, the
+    force failed."""
+    sc, p = _problem(tmp_path, "blocked_force", *FLAT_STOP)
+    p.mu_t.value = 0.0
+    lay = layout(sc)
+    top, k_n, theta = lay.obstacle_top_y_m, sc.stop and sc.contact.penalty_N_m3, math.radians(tilt_deg)
+    force = {}
+    for d in (10e-6, 20e-6):
+        # rotate about the arc's underside tangent point B (r from the free end); the arc's centre
+        # sits r above B, so its lowest point lies r (1 - cos θ) above where B is placed
+        _place(p, (-lay.length_m + EDGE_R, top - d + EDGE_R * (1 - math.cos(theta))), angle_rad=theta,
+               pivot_from_tip_m=EDGE_R)
+        Fx, Fy = p.obstacle_forces()
+        force[d] = Fy
+        assert Fy == pytest.approx(_cylinder_on_winkler(k_n, lay.width_m, EDGE_R, d), rel=5e-3)   # measured <= 0.11 %
+        assert abs(Fx) < 1e-9 * Fy                       # frictionless on a flat: straight down
+        print(f"theta {tilt_deg} d {d}: Fy / law - 1 = {Fy / _cylinder_on_winkler(k_n, lay.width_m, EDGE_R, d) - 1:.2e}, "
+              f"deepest point {p.max_penetration_at_points():.4e}")
+        # the solver's own contact points lie on the arc: the deepest is d in
+        assert p.max_penetration_at_points() == pytest.approx(d, abs=5e-8)
+    exponent = math.log(force[20e-6] / force[10e-6]) / math.log(2)
+    assert exponent == pytest.approx(math.log(_cylinder_on_winkler(1, 1, EDGE_R, 20e-6)
+                                              / _cylinder_on_winkler(1, 1, EDGE_R, 10e-6)) / math.log(2), abs=0.01)
