@@ -52,7 +52,7 @@ def cmd_fem_study(args) -> int:
     from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
     convergence.load_study(args.study)          # a bad study file: InputError before any run
     result = convergence.run_study(args.study, Path(args.out), MPI.COMM_WORLD, args.ranks_per_case,
-                                   Path(args.publish) if args.publish else None)
+                                   Path(args.publish) if args.publish else None, names(args.only))
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print("\n".join(convergence.report_lines(result)))
@@ -102,5 +102,7 @@ def register(sub) -> None:
                    help="a study of studies/ by name, or a TOML file (default contact_reference: the contact "
                         "ladders' orders and bound, and the data fidelity against their Richardson value)")
     p.add_argument("--publish", default="", help="also write the study's JSON into this folder (bench/reference)")
+    p.add_argument("--only", default="", help="comma-separated cases to solve now (default: all); the summary "
+                                              "takes every case solved so far")
     _common(p)
     p.set_defaults(func=cmd_fem_study)

@@ -149,13 +149,26 @@ def summarise(study: dict, metrics: dict) -> dict:
     for name, lad in study["ladders"].items():
         names, r = lad["cases"], float(lad["ratio"])
         if not all(n in metrics for n in names):
+            # an incomplete ladder: its solved levels and the changes between neighbours that are solved
+            vals = [metrics[n]["x_at_t_mm"] if n in metrics else None for n in names]
+            changes = [100.0 * (b / a - 1.0) if a is not None and b is not None else None
+                       for a, b in zip(vals[:-1], vals[1:])]
+            ladders[name] = {"label": lad.get("label", name), "cases": names, "ratio": r, "complete": False,
+                             "x_at_t_mm": vals, "changes_percent": changes, "observed_order_x_at_t": math.nan,
+                             "richardson_x_at_t_mm": math.nan, "gci_x_at_t_percent": math.nan,
+                             "observed_order_mae_x": math.nan, "mae_x_mm": [math.nan, math.nan],
+                             "peak_overlap_um": [metrics[n]["peak_overlap_um"] if n in metrics else None
+                                                 for n in names],
+                             "min_points": min((metrics[n]["min_points"] for n in names if n in metrics), default=0)}
             continue
         m = [metrics[n] for n in names]
         x = observed(*(c["x_at_t_mm"] for c in m), r, safety)
         end = observed(*(c["x_end_mm"] for c in m), r, safety)
         e_cm, e_mf = mae_mm(m[0], m[1]), mae_mm(m[1], m[2])
         ladders[name] = {
-            "label": lad.get("label", name), "cases": names, "ratio": r,
+            "label": lad.get("label", name), "cases": names, "ratio": r, "complete": True,
+            "changes_percent": [100.0 * (m[1]["x_at_t_mm"] / m[0]["x_at_t_mm"] - 1.0),
+                                100.0 * (m[2]["x_at_t_mm"] / m[1]["x_at_t_mm"] - 1.0)],
             "observed_order_x_at_t": x["observed_order"], "x_at_t_mm": x["values"], "monotone": x["monotone"],
             "richardson_x_at_t_mm": x["richardson"], "gci_x_at_t_percent": x["gci_percent"],
             "mae_x_mm": [e_cm, e_mf], "observed_order_mae_x": order_of_differences(e_cm, e_mf, r),
@@ -174,11 +187,11 @@ def summarise(study: dict, metrics: dict) -> dict:
                  if len(dt) == 2 and all(n in metrics for n in dt) else math.nan)
     out["dt_change_percent"] = dt_change
     gcis = [lad["gci_x_at_t_percent"] for lad in ladders.values()]
-    complete = len(ladders) == len(study["ladders"])
+    complete = all(lad["complete"] for lad in ladders.values()) and len(ladders) == len(study["ladders"])
     out["bound_percent"] = (sum(gcis) + dt_change) if complete and gcis else math.nan
     # the reference value: the shared middle case corrected by each ladder's Richardson step
     middle = _shared_middle(study)
-    if complete and middle in metrics and all(np.isfinite(richardson)):
+    if complete and middle in metrics and richardson and all(np.isfinite(richardson)):
         base = metrics[middle]["x_at_t_mm"]
         out["reference_x_at_t_mm"] = base + sum(rv - base for rv in richardson)
     else:
@@ -201,6 +214,8 @@ def _shared_middle(study: dict) -> str:
 def bound_from_rungs(result: dict) -> float:
     """The bound (%) recomputed from the rungs' stored x(time_s) values alone: Σ GCI + the step's change."""
     total = 0.0
+    if not all(lad.get("complete", True) for lad in result["ladders"].values()):
+        return math.nan
     for lad in result["ladders"].values():
         total += observed(*lad["x_at_t_mm"], lad["ratio"], result["safety_factor"])["gci_percent"]
     return total + result["dt_change_percent"]
@@ -211,7 +226,11 @@ def report_lines(result: dict) -> list[str]:
     t = result["time_s"]
     lines = [f"{result['study']}: {result['scene']} {result['setup']}, x({t:g} s)"]
     for name, lad in result["ladders"].items():
-        xs = " / ".join(f"{v:.4f}" for v in lad["x_at_t_mm"])
+        xs = " / ".join("–" if v is None else f"{v:.4f}" for v in lad["x_at_t_mm"])
+        if not lad.get("complete", True):
+            ch = ", ".join("–" if c is None else f"{c:+.3f} %" for c in lad["changes_percent"])
+            lines.append(f"  {name} ({lad['label']}): x = {xs} mm, incomplete; level to level {ch}")
+            continue
         lines.append(f"  {name} ({lad['label']}): x = {xs} mm, order {lad['observed_order_x_at_t']:.2f} "
                      f"(MAE of x(t) {lad['mae_x_mm'][0] * 1e3:.2f} / {lad['mae_x_mm'][1] * 1e3:.2f} um, order "
                      f"{lad['observed_order_mae_x']:.2f}), Richardson {lad['richardson_x_at_t_mm']:.4f} mm, "
@@ -229,13 +248,21 @@ def report_lines(result: dict) -> list[str]:
     return lines
 
 
-def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: Path | None = None) -> dict | None:
-    """Solve a study's cases (resuming), then, on rank 0, summarise what is solved into
-    ``<out>/<study>.json`` (and ``<publish>/<study>.json``) and return it."""
-    from deapull.workflows.runner import run_cases
+def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: Path | None = None,
+              only=None) -> dict | None:
+    """Solve a study's cases (resuming; ``only``: just these), then, on rank 0, summarise every case
+    solved so far into ``<out>/<study>.json`` (and ``<publish>/<study>.json``) and return it; the
+    cases not solved are listed under ``failed`` with why."""
+    from deapull.workflows.runner import load_result, run_cases
     study = load_study(name_or_path)
     name = Path(study["path"]).stem
-    results = run_cases(cases_of(study), out, comm, ranks_per_case, desc=name)
+    cases = cases_of(study)
+    unknown = [n for n in (only or []) if n not in study["cases"]]
+    if unknown:
+        raise InputError(f"--only {unknown[0]!r}: not a case of {name}; its cases: {', '.join(study['cases'])}")
+    chosen = [c for c in cases if not only or c.name in only]
+    run_cases(chosen, out, comm, ranks_per_case, desc=name)
+    results = [load_result(out, c) or {"case": c.name, "status": "not run", "reason": "not run yet"} for c in cases]
     if comm.rank != 0:
         return None
     metrics = {}

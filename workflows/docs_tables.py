@@ -35,6 +35,10 @@ def contact_reference(result: dict) -> str:
                   "Richardson mm | GCI % |", "|---|---|---|---|---|---|"]
     for name, lad in result["ladders"].items():
         xs = " / ".join(_f(v, ".4f") for v in lad["x_at_t_mm"])
+        if not lad.get("complete", True):
+            ch = ", ".join(_f(c, "+.3f") + " %" if c is not None else "–" for c in lad["changes_percent"])
+            lines.append(f"| {lad['label']} | {xs} | – (incomplete; level to level {ch}) | – | – | – |")
+            continue
         lines.append(f"| {lad['label']} | {xs} | {_f(lad['observed_order_x_at_t'], '.2f')} | "
                      f"{_f(lad['observed_order_mae_x'], '.2f')} | {_f(lad['richardson_x_at_t_mm'], '.4f')} | "
                      f"{_f(lad['gci_x_at_t_percent'], '.3f')} |")
