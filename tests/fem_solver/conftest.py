@@ -45,5 +45,12 @@ def balance_bound_N(scene, num_dofs: int) -> float:
 def c3_run(tmp_path_factory):
     """(scene, dataset path) of the test-size C3 run with today's code (~4 s)."""
     from deapull.fem_solver.run import solve_scene
+    from deapull.fem_solver.stepping import Stepper
     sc = scenes.load("coin_pull", setup="C3", overrides=C3_TEST)
-    return sc, solve_scene(sc, tmp_path_factory.mktemp("c3"), progress=False)
+    # the coupling's first guess as the fixture's code had it (no acceleration term): the records
+    # then agree to round-off; test_stepping.py measures what the acceleration changes
+    Stepper.PREDICT_ACCELERATION = False
+    try:
+        return sc, solve_scene(sc, tmp_path_factory.mktemp("c3"), progress=False)
+    finally:
+        Stepper.PREDICT_ACCELERATION = True
