@@ -14,7 +14,7 @@ MPIRUN := mpirun -n $(NP)
 FIDELITY ?=
 FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
-.PHONY: help setup demo test mesh solve sweep excitation push-ramps bench-fem bench-blas bench-control-fem bench-inference control-fem control-fem-seeds control-fem-infer fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
+.PHONY: help setup demo test mesh solve sweep excitation push-ramps bench-fem bench-blas bench-control-fem bench-inference control-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
 	report report-fields clean
 
 help: ## list the targets
@@ -83,71 +83,34 @@ FEM_PLANTS ?= C3
 comma := ,
 bench-control-fem: setup ## one episode of make control-fem's MPC on the FEM plant per setup in FEM_PLANTS: ms per FEM step and per plan, wall time per episode (needs $(DATA))
 	$(FA_MEM)
-	$(PY) bench/bench_control_fem.py $(FEM_CONTROL) --plant $(subst $(comma),$(comma)fem:,fem:$(FEM_PLANTS)) \
+	$(PY) bench/bench_control_fem.py --preset fem --plant $(subst $(comma),$(comma)fem:,fem:$(FEM_PLANTS)) \
 		--data $(DATA) --out $(OUT)/bench_control_fem
 
 MODELS ?= $(OUT)/models
-NOISE ?= 0,1e-5,1e-4,1e-3
-#: the MPC's arrival on the surrogates: at 5 V per step the coin moves ~40 um a step near 390 V and
-#: coasts ~20 um after the push, and under noise the MPC plans from f_a's velocity (8-20 % below the
-#: plant's), so it overshoots; a 0.1 mm taper (without the reach gate, which the prior's median fires at
-#: C1's -1 mm) costs 1-4 iterations. Measured (eighteenth session, docs/control.md): settled at 1e-5
-#: C1 2/10 -> 10/10, C2 10/10; at 1e-4 C1 2/10 -> 4/10, C2 7/10 -> 9/10; noise 0 10/10 at 81 / 82 (was 80).
-#: A stand-off of 2 stds (twenty-second session): under noise the MPC stops short, lets the observations
-#: average its estimate down, then creeps in. At 1e-4 it settles 59 of 60 episodes (45 of 60 without) at
-#: medians of 255-856 iterations; no controller settles 10/10 within ~100 there (the information bound,
-#: docs/control.md "What noise allows"). Noise 0 and 1e-5: 10/10 at 81-88, as without it
-MPC_ARRIVAL ?= --mpc-approach-mm 0.1 --mpc-no-reach-gate --mpc-standoff 2
-#: make control's f_a (fa_push): f-coulomb on the C3..C7 ramps and on their 80 ms pushes ($(DATA)/push, make
-#: push-ramps), the MPC's own rate: under that push the ramp-only f_a ends 10 % short of f_s,1 / f_s,2, this one
-#: +0.1-0.3 % (twenty-first session, docs/control.md: at 1e-4, 39 of 60 episodes settled against 31 of 60)
-control: setup ## closed loop: MPC, SAC, PD, heuristic on f_s,1 and f_s,2, 10 episodes per noise in NOISE (needs $(DATA); runs make push-ramps first when f_a is missing, ~25 min)
+PRESET ?= surrogate
+control: setup ## closed loop at a preset of control/presets: PRESET=surrogate (MPC, SAC, PD, heuristic on f_s,1 and f_s,2, Fig. 6; needs $(DATA)) or PRESET=fem (the MPC on fem:C1..C8 and the push-push-pull-back task on fem:C3)
+ifeq ($(PRESET),fem)
+	$(FA_MEM)
+	$(DEAPULL) control --preset fem --data $(DATA) --out $(OUT)/control_fem
+	$(DEAPULL) control --preset fem $(FEM_MULTI) --data $(DATA) --out $(OUT)/control_fem/multi
+else
 	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
 		--val C$$((3 - s)) --model f-coulomb --epochs 300 --out $(MODELS)/fs$$s || exit 1; done
 	@test -f $(MODELS)/fa_push/model.json || $(MAKE) --no-print-directory push-ramps
 	@test -f $(MODELS)/fa_push/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --runs $(DATA)/push --out $(MODELS)/fa_push
-	$(DEAPULL) control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 --noise $(NOISE) \
-		--phi-prior coins --data $(DATA) --plant-model '$(MODELS)/fs{n}' --mpc-model $(MODELS)/fa_push --sac-dir '$(MODELS)/sac{n}' \
-		$(MPC_ARRIVAL) --out $(OUT)/control
+	$(DEAPULL) control --preset $(PRESET) --data $(DATA) --out $(OUT)/control
+endif
 
-# issue 24's FEM setting (docs/control.md, ninth session): the sweep's 0.4 V per step (a slow push
-# carries the heavy coins to the target), tapered within 0.1 mm of the target down to 0.1 V per step;
-# the f-memory f_a (it models the tip's dead band, so a coin parked short restarts; it plans at the
-# coin prior's median: at noise 1e-4 the data identify no field of φ, docs/control.md), a stand-off of 2 stds (the estimate averages down before
-# the last push; it gives way at the edge of the reach) and the bias filter's innovation check over 25
-# steps (the estimate follows the release of a pull-back). A plant whose ramp does not take its coin
-# to the target (on the resolved contact: C5, C6, C8 at -1 mm) is a row "unreachable" in the table.
-FEM_COMMON := --policy mpc --episodes 1 --noise 1e-4 --phi-prior coins --mpc-max-rate 0.4 --mpc-approach-mm 0.1 \
-	--mpc-creep 0.1 --unreachable report $(FIDELITY_ARG)
-FEM_ALL := fem:C1,fem:C2,fem:C3,fem:C4,fem:C5,fem:C6,fem:C7,fem:C8
 FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7
-FEM_CONTROL := $(FEM_COMMON) --max-steps 4000 --mpc-model $(MODELS)/fa_mem --mpc-no-infer --mpc-standoff 2 \
-	--mpc-innovation-window 25
 FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
 bench-inference: setup ## ms per online-inference update of the f-memory f_a: compiled vs torch, same run (needs $(DATA))
 	$(FA_MEM)
 	$(PY) bench/bench_inference.py --model $(MODELS)/fa_mem
 
-control-fem: setup ## the offset-free MPC on the FEM plants fem:C1..C8 (noise 1e-4) and the push-push-pull-back task on fem:C3 (resolved: ~1.5 h on one core, 7-25 min an episode)
-	$(FA_MEM)
-	$(DEAPULL) control $(FEM_CONTROL) --plant $(FEM_ALL) --out $(OUT)/control_fem
-	$(DEAPULL) control $(FEM_CONTROL) $(FEM_MULTI) --out $(OUT)/control_fem/multi
-
-# issue 24's three-seed FEM goal: fem:C1 and fem:C3, seeds 0-2 (episode k is seed k), control-fem's setting
-control-fem-seeds: setup ## fem:C1 and fem:C3, three seeds each, control-fem's setting (resolved: ~1.5 h on one core, 7-15 min an episode)
-	$(FA_MEM)
-	$(DEAPULL) control $(FEM_CONTROL) --episodes 3 --plant fem:C1,fem:C3 --out $(OUT)/control_fem_seeds
-
-# the fourth session's setting, with online inference of φ: the f-coulomb f_a (trained on the C3..C7
-# ramps), no stand-off, no innovation check, 3,000 steps (docs/control.md: 4 of 6 seeds settled)
-FEM_CONTROL_INFER := $(FEM_COMMON) --max-steps 3000 --mpc-model $(MODELS)/fa
-control-fem-infer: setup ## control-fem's tasks with the f-coulomb f_a and online inference of φ (the fourth session's setting; resolved: ~1 h)
-	@test -f $(MODELS)/fa/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
-		--model f-coulomb --epochs 300 --out $(MODELS)/fa
-	$(DEAPULL) control $(FEM_CONTROL_INFER) --plant $(FEM_ALL) --out $(OUT)/control_fem_infer
-	$(DEAPULL) control $(FEM_CONTROL_INFER) $(FEM_MULTI) --out $(OUT)/control_fem_infer/multi
+control-fem: ## make control PRESET=fem (the report's step name)
+	@$(MAKE) --no-print-directory control PRESET=fem
 
 experiments: setup ## the paper's six sliding sets for every model, best of 5 seeds on each validation setup (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments

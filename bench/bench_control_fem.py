@@ -38,8 +38,10 @@ def config_of(argv):
     """``deapull control``'s :class:`ControlConfig` of ``argv``, checked to be the MPC alone on FEM
     plants (what this bench times); the progress bar off."""
     from deapull.workflows.cli import build_parser
-    from deapull.workflows.cli_control import control_config
-    config = control_config(build_parser().parse_args(["control", *argv]))
+    from deapull.workflows.cli_control import apply_preset, control_config
+    args = build_parser().parse_args(["control", *argv])
+    apply_preset(args, args.parser)
+    config = control_config(args)
     if config.policies != ["mpc"]:
         raise InputError(f"--policy {','.join(config.policies)}: the bench times the MPC alone (--policy mpc)")
     others = [p.name for p in config.plants if p.kind != "fem"]

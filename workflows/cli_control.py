@@ -6,14 +6,110 @@ and maps to exit status 2. torch, gymnasium and dolfinx are imported only when a
 """
 from __future__ import annotations
 
+import argparse
+import tomllib
 from pathlib import Path
 
 from deapull.errors import InputError
 from deapull.workflows.args import add_fidelity_arg, overrides_of
 
 
+PRESET_DIR = Path(__file__).resolve().parents[1] / "control" / "presets"
+#: the options every run names itself (a preset does not set where to write)
+NOT_IN_PRESETS = ("out", "preset", "overrides", "func", "command", "verbose", "parser", "options")
+#: the options ``deapull control --help`` lists; the others are set by a preset or ``--set control.KEY=VALUE``
+LISTED = ("preset", "policy", "plant", "noise", "episodes", "seed", "target_mm", "data", "out", "scene", "fidelity",
+          "overrides", "no_progress", "options")
+
+
+def preset_path(name: str) -> Path:
+    """A shipped preset by name (control/presets/NAME.toml) or a path to a TOML file."""
+    p = Path(name)
+    if p.suffix == ".toml":
+        if not p.is_file():
+            raise InputError(f"--preset {name!r}: no such file")
+        return p
+    path = PRESET_DIR / f"{name}.toml"
+    if not path.is_file():
+        shipped = ", ".join(sorted(q.stem for q in PRESET_DIR.glob("*.toml")))
+        raise InputError(f"--preset {name!r}: unknown preset; shipped: {shipped}")
+    return path
+
+
+def _option_value(action, key: str, value, source: str):
+    """``value`` checked against the option's type (the parser's own conversion for strings);
+    ``source`` names where it was set, the key after it (``--set control.`` or ``preset NAME: control.``)."""
+    default = action.default
+    if isinstance(action, argparse._StoreTrueAction) or isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(f"{source}{key} = {value!r}: expected true or false")
+        return value
+    kind = action.type or (type(default) if default is not None else str)
+    try:
+        if isinstance(value, bool) or (kind in (int, float) and isinstance(value, str)):
+            raise ValueError
+        out = kind(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{source}{key} = {value!r}: expected {getattr(kind, '__name__', kind)}") from None
+    if action.choices and out not in action.choices:
+        raise InputError(f"{source}{key} = {out!r}: expected one of {', '.join(map(str, action.choices))}")
+    return out
+
+
+def apply_preset(args, parser) -> None:
+    """``--preset``'s settings, then ``--set control.KEY=VALUE``, onto ``args``: a preset value
+    replaces an option left at its default; ``--set control.`` wins over both. An unknown key
+    exits 2 naming it and the allowed ones."""
+    from deapull.scene import _parse_value
+    actions = {a.dest: a for a in parser._actions if a.dest not in NOT_IN_PRESETS and a.dest != "help"}
+    allowed = ", ".join(sorted(actions))
+    settings = {}
+    if args.preset:
+        path = preset_path(args.preset)
+        try:
+            table = tomllib.loads(path.read_text()).get("control", {})
+        except tomllib.TOMLDecodeError as err:
+            raise InputError(f"{path}: not valid TOML ({err})") from None
+        for key, value in table.items():
+            if key not in actions:
+                raise InputError(f"preset {path.name}: control.{key}: unknown key; allowed: {allowed}")
+            if getattr(args, key) == actions[key].default:
+                settings[key] = _option_value(actions[key], key, value, f"preset {path.name}: control.")
+    scene_sets = []
+    for assignment in args.overrides:
+        path, _, text = assignment.partition("=")
+        if not path.strip().startswith("control."):
+            scene_sets.append(assignment)
+            continue
+        key = path.strip()[len("control."):]
+        if key not in actions:
+            raise InputError(f"--set control.{key}: unknown key; allowed: {allowed}")
+        settings[key] = _option_value(actions[key], key, _parse_value(text.strip()), "--set control.")
+    args.overrides = scene_sets
+    for key, value in settings.items():
+        setattr(args, key, value)
+    for key in ("policy", "plant", "out"):
+        if not getattr(args, key):
+            raise InputError(f"--{key}: missing; give it, or a --preset that sets it (shipped: "
+                             f"{', '.join(sorted(q.stem for q in PRESET_DIR.glob('*.toml')))})")
+
+
+def options_text(parser) -> str:
+    """Every option of ``deapull control``, the ones --help leaves out too, as a preset key with its help."""
+    lines = ["Every option; in a preset (control/presets/*.toml, table [control]) or as --set control.KEY=VALUE:"]
+    for a in parser._actions:
+        if a.dest in NOT_IN_PRESETS or a.dest == "help":
+            continue
+        lines.append(f"  {a.dest} (default {a.default!r}): {a.full_help}")
+    return "\n".join(lines)
+
+
 def cmd_control(args) -> int:
+    if args.options:
+        print(options_text(args.parser))
+        return 0
     from deapull.workflows import control  # lazy: torch and gymnasium load only when a run starts
+    apply_preset(args, args.parser)
     config = control_config(args)
     import torch  # lazy: as above
     torch.set_num_threads(args.threads)
@@ -71,19 +167,24 @@ def register(sub) -> None:
     """Add ``control`` to the ``deapull`` sub-parsers."""
     p = sub.add_parser("control", help="closed-loop control episodes: MPC, SAC, PD, heuristic on surrogate or "
                                        "FEM plants (CSV, table beside the paper, Fig. 6 plots)")
-    p.add_argument("--policy", required=True,
+    p.add_argument("--preset", default=None,
+                   help="a shipped preset (control/presets: surrogate, the paper's Fig. 6 on f_s,1 and f_s,2; fem, the "
+                        "MPC on fem:C1..C8) or a TOML file; the flags given win over it, --set control.KEY=VALUE "
+                        "over both")
+    p.add_argument("--options", action="store_true", help="print every option (those a preset sets too) and exit")
+    p.add_argument("--policy", default=None,
                    help="policy or comma-separated policies: mpc, sac, pd (K_p -0.5, K_d 5 V/mm), heur (+0.5 V/step); "
                         "mpc is offset-free (it estimates f_a's gain error with the position and holds V once "
                         "the estimate is inside the window); mpc+kf: the earlier MPC on a position-only Kalman "
                         "estimate; pd+kf: the PD on a constant-velocity Kalman estimate")
-    p.add_argument("--plant", required=True,
+    p.add_argument("--plant", default=None,
                    help="plant(s) KIND:SETUP, comma-separated: surrogate:C1 (the paper's f_s,1), fem:C1 (the FEM "
                         "stepped online)")
     p.add_argument("--noise", default="0",
                    help="std(s) of the Gaussian noise on the observed x (m), comma-separated, e.g. 0,1e-5,1e-4,1e-3 "
                         "(default 0; the paper: 1e-3)")
     p.add_argument("--episodes", type=int, default=10, help="episodes per policy, plant and noise (default 10)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", default=None, help="output folder (required for a run)")
     p.add_argument("--seed", type=int, default=0, help="episode i uses seed SEED + i (noise, plant) (default 0)")
     p.add_argument("--dv-max", type=float, default=5.0,
                    help="largest |dV| per 1 ms step, the same for every policy (V; default 5)")
@@ -168,13 +269,18 @@ def register(sub) -> None:
     p.add_argument("--scene", default="coin_pull", help="scene of the setups and of the FEM plant (coin_pull)")
     add_fidelity_arg(p)
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one key of the FEM plant's scene (validated like the file); repeatable")
+                   help="control.KEY=VALUE: one control option (deapull control --options lists them); any other "
+                        "section: one key of the FEM plant's scene (validated like the file); repeatable")
     p.add_argument("--save-fem-runs", default=None, metavar="DIR",
                    help="write each FEM plant episode as a dataset DIR/<setup>_<policy>_n<noise>_e<episode>.nc (the "
                         "FEM's contract; the surrogates train on it: dataset aggregation)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_control)
+    for action in p._actions:          # --help lists the main options; --options and presets the rest
+        action.full_help = action.help
+        if action.dest not in LISTED and action.dest != "help":
+            action.help = argparse.SUPPRESS
+    p.set_defaults(func=cmd_control, parser=p)
     register_dagger(sub)
 
 

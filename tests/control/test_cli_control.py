@@ -320,3 +320,47 @@ def test_the_tables_bound_column_sums_each_reached_episodes_bound_at_the_tasks_t
     # erf(w sqrt(N) / (sigma sqrt 2)): 0.683 at N = 100 and 0.950 at N = 384 for w = 10 um, sigma = 0.1 mm
     assert summary_rows(rows, 1e-5)[0]["bound"] == "1.6/3"
     assert summary_rows(rows, 2e-5)[0]["bound"] == "2.0/3", "the task's tolerance, not a fixed one"
+
+
+def _parsed(*argv):
+    from deapull.workflows.cli import build_parser
+    from deapull.workflows.cli_control import apply_preset
+    args = build_parser().parse_args(["control", *argv])
+    apply_preset(args, args.parser)
+    return args
+
+
+def test_a_preset_sets_the_options_that_flags_and_set_control_override(tmp_path):
+    """``--preset surrogate`` gives make control's setting; a flag given wins over it, and
+    ``--set control.KEY=VALUE`` over both; the scene's own --set keys pass through to the FEM plant.
+    Broken once with the preset applied after the flags: --episodes 3 came back as 10."""
+    args = _parsed("--preset", "surrogate", "--out", str(tmp_path), "--episodes", "3",
+                   "--set", "control.mpc_standoff=1.5", "--set", "control.mpc_no_reach_gate=false",
+                   "--set", "mesh.n_length=4")
+    assert args.policy == "mpc,sac,pd,heur" and args.plant == "surrogate:C1,surrogate:C2"
+    assert args.episodes == 3 and args.mpc_standoff == 1.5 and args.mpc_no_reach_gate is False
+    assert args.mpc_model == "out/models/fa_push" and args.overrides == ["mesh.n_length=4"]
+    fem = _parsed("--preset", "fem", "--out", str(tmp_path))
+    assert fem.plant.count("fem:") == 8 and fem.mpc_max_rate == 0.4 and fem.unreachable == "report"
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--preset", "nope"], "--preset 'nope': unknown preset; shipped: fem, surrogate"),
+    (["--preset", "surrogate", "--set", "control.mpc_standof=2"], "--set control.mpc_standof: unknown key"),
+    (["--preset", "surrogate", "--set", "control.episodes=two"], "control.episodes = 'two': expected int"),
+    (["--preset", "surrogate", "--set", "control.infer_loss='roll'"], "expected one of step, rollout"),
+    (["--episodes", "2"], "--policy: missing"),
+])
+def test_a_bad_preset_or_key_exits_2_naming_it(tmp_path, capsys, argv, named):
+    assert main(["control", *argv, "--out", str(tmp_path)]) == 2
+    assert named in capsys.readouterr().err
+
+
+def test_the_help_lists_at_most_15_options_and_options_lists_them_all(capsys):
+    with pytest.raises(SystemExit):
+        main(["control", "--help"])
+    listed = [line for line in capsys.readouterr().out.splitlines() if line.startswith("  -")]
+    assert len(listed) <= 15, listed
+    assert main(["control", "--options"]) == 0
+    text = capsys.readouterr().out
+    assert "mpc_standoff (default 0.0)" in text and "infer_loss (default 'step')" in text
