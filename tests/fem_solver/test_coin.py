@@ -66,7 +66,7 @@ def test_penetration_measure_uses_the_contact_s_rounded_rim():
 
 
 def test_the_rim_normal_is_the_gradient_of_the_signed_distance():
-    """``rounded_cylinder_normal`` (the contact's n, used by scripts/contact_points.py) against
+    """``rounded_cylinder_normal`` (the contact's n) against
     central differences of the tested distance, on the top face, the side wall and the fillet
     (away from the kinks between them); only fillet points are flagged as on the rim. Broken
     once (the fillet's n_y and n_ρ swapped): it failed."""
