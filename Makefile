@@ -14,8 +14,8 @@ MPIRUN := mpirun -n $(NP)
 FIDELITY ?=
 FIDELITY_ARG := $(if $(FIDELITY),--fidelity $(FIDELITY))
 
-.PHONY: help setup demo test mesh solve sweep excitation push-ramps bench-fem bench-blas bench-control-fem bench-inference control-fem fem-study bench-surrogate fidelity stability control experiments experiments-protocols \
-	report report-fields clean
+.PHONY: help setup demo test test-data solve sweep fem-study fidelity stability bench control experiments \
+	experiments-protocols report report-fields clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-16s %s\n", $$1, $$2}'
@@ -33,27 +33,18 @@ test: setup ## run the test suite (serial and mpirun -n 2 checks)
 test-data: setup ## regenerate the surrogate tests' FEM fixture tests/data/sweep (mpirun -n 2, about a minute)
 	$(PY) tests/data/make_sweep.py
 
-mesh: setup ## mesh the default scene into $(OUT)/mesh
-	$(DEAPULL) mesh --scene coin_pull --out $(OUT)/mesh
-
 solve: setup ## FEM solve of one setup: make solve SETUP=C5
 	$(DEAPULL) solve --scene coin_pull --setup $(or $(SETUP),C3) $(FIDELITY_ARG) --out $(DATA)
 
-sweep: setup ## the 8 setups under mpirun -n $(NP) into $(DATA)/ (resumes if interrupted)
-	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --out $(DATA)
-
-push-ramps: setup ## the ramp in 80 ms (the MPC's full push, 5 V per 1 ms step), then held 200 ms, for C1..C8 into $(DATA)/push (resumes; 3-5 min a setup; the rim band and table that a fast push needs)
-	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --protocols push --out $(DATA)/push
-
-excitation: setup ## ramp-hold-ramp, triangle, release, 3 random inputs for C1,C3,C5,C7 into $(DATA)/excitation (resumes)
-	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --setups C1,C3,C5,C7 --protocols excitation \
-		--out $(DATA)/excitation
-
-bench-fem: setup ## FEM wall time, travel error and x(t) MAE vs the committed contact-ladder reference (its bound and what it leaves out), Newton its, 8-setup sweep; beside ABAQUS 130 s
-	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
-
-bench-blas: setup ## the resolved Jacobian's LU (MUMPS, UMFPACK) with the system BLAS (OpenBLAS) vs the reference BLAS, same run; BLAS_SOLVE=1 adds the whole C3 ramp under both
-	$(PY) bench/bench_blas.py --out $(OUT)/bench_blas $(if $(BLAS_SOLVE),--solve)
+#: PROTOCOLS=scene: the 8 ramps into $(DATA); push: the ramp in 80 ms (the MPC's full push), then held
+#: 200 ms, into $(DATA)/push; excitation: ramp-hold-ramp, triangle, release and 3 random inputs for C1,
+#: C3, C5, C7 into $(DATA)/excitation
+PROTOCOLS ?= scene
+SWEEP_OUT = $(if $(filter scene,$(PROTOCOLS)),$(DATA),$(DATA)/$(PROTOCOLS))
+EXCITATION_SETUPS := --setups C1,C3,C5,C7
+SWEEP_SETUPS = $(if $(filter excitation,$(PROTOCOLS)),$(EXCITATION_SETUPS))
+sweep: setup ## the 8 setups under mpirun -n $(NP) (PROTOCOLS=scene|push|excitation) into $(DATA)/ (resumes)
+	$(MPIRUN) $(DEAPULL) sweep --scene coin_pull $(FIDELITY_ARG) --protocols $(PROTOCOLS) $(SWEEP_SETUPS) --out $(SWEEP_OUT)
 
 fem-study: setup ## the contact reference: two mesh ladders, the step halved, the data fidelity against their Richardson value (studies/contact_reference.toml; resumes; hours on 2 cores); writes bench/reference/contact_reference.json
 	$(MPIRUN) $(DEAPULL) fem-study --study contact_reference --out $(OUT)/fem_study --publish bench/reference
@@ -63,28 +54,6 @@ fidelity: setup ## error against run time ladder on coin_pull C3 at FIDELITY (ev
 
 stability: setup ## stiff and extreme cases at FIDELITY; resumes
 	$(MPIRUN) $(DEAPULL) stability $(FIDELITY_ARG) --out $(OUT)/stability
-
-bench-surrogate: setup ## 1 s rollout time of each surrogate model (needs $(DATA) from make sweep)
-	$(PY) bench/bench_surrogate.py --data $(DATA)
-
-MPC_PYTORCH := $(OUT)/mpc_pytorch
-#: the bench's target (mm from the start): 0.8 mm, inside the reach of the f_a the bench trains on the
-#: resolved data (C1's coin: 0.842 mm at 400 V, eighteenth session; 0.85 mm, inside the reach on the
-#: one-point data with the table, was refused there with exit 2); the paper's 1 mm is refused too (exit
-#: 2, with the reach); BENCH_TARGET_MM=1.0 with a model that reaches it
-BENCH_TARGET_MM ?= 0.8
-bench-control: setup ## ms per MPC step: our box-iLQR vs mpc.pytorch (installed apart, in $(OUT)/mpc_pytorch), beside the paper's 1.2 s
-	@test -d $(MPC_PYTORCH)/mpc || .venv/bin/pip install --quiet --no-deps --target $(MPC_PYTORCH) mpc==0.0.6 \
-		|| echo "mpc.pytorch could not be installed: the bench times ours only"
-	$(PY) bench/bench_control.py --data $(DATA) --mpc-path $(MPC_PYTORCH) --out $(OUT)/bench_control \
-		--target-mm $(BENCH_TARGET_MM)
-
-FEM_PLANTS ?= C3
-comma := ,
-bench-control-fem: setup ## one episode of make control-fem's MPC on the FEM plant per setup in FEM_PLANTS: ms per FEM step and per plan, wall time per episode (needs $(DATA))
-	$(FA_MEM)
-	$(PY) bench/bench_control_fem.py --preset fem --plant $(subst $(comma),$(comma)fem:,fem:$(FEM_PLANTS)) \
-		--data $(DATA) --out $(OUT)/bench_control_fem
 
 MODELS ?= $(OUT)/models
 PRESET ?= surrogate
@@ -96,7 +65,7 @@ ifeq ($(PRESET),fem)
 else
 	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
 		--val C$$((3 - s)) --model f-coulomb --epochs 300 --out $(MODELS)/fs$$s || exit 1; done
-	@test -f $(MODELS)/fa_push/model.json || $(MAKE) --no-print-directory push-ramps
+	@test -f $(MODELS)/fa_push/model.json || $(MAKE) --no-print-directory sweep PROTOCOLS=push
 	@test -f $(MODELS)/fa_push/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --runs $(DATA)/push --out $(MODELS)/fa_push
 	$(DEAPULL) control --preset $(PRESET) --data $(DATA) --out $(OUT)/control
@@ -105,12 +74,35 @@ endif
 FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7
 FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
-bench-inference: setup ## ms per online-inference update of the f-memory f_a: compiled vs torch, same run (needs $(DATA))
+MPC_PYTORCH := $(OUT)/mpc_pytorch
+#: bench control's target (mm from the start), inside the reach of the f_a it trains; the paper's 1 mm
+#: with a model that reaches it (BENCH_TARGET_MM=1.0)
+BENCH_TARGET_MM ?= 0.8
+FEM_PLANTS ?= C3
+comma := ,
+BENCH ?= fem
+bench: setup ## speed, measured beside a baseline in the same run: BENCH=fem (C3 vs ABAQUS 130 s, the sweep), surrogate (1 s rollouts), control (MPC step vs mpc.pytorch and the paper's 1.2 s), control-fem (FEM_PLANTS), inference, blas
+ifeq ($(BENCH),fem)
+	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
+else ifeq ($(BENCH),surrogate)
+	$(PY) bench/bench_surrogate.py --data $(DATA)
+else ifeq ($(BENCH),control)
+	@test -d $(MPC_PYTORCH)/mpc || .venv/bin/pip install --quiet --no-deps --target $(MPC_PYTORCH) mpc==0.0.6 \
+		|| echo "mpc.pytorch could not be installed: the bench times ours only"
+	$(PY) bench/bench_control.py --data $(DATA) --mpc-path $(MPC_PYTORCH) --out $(OUT)/bench_control \
+		--target-mm $(BENCH_TARGET_MM)
+else ifeq ($(BENCH),control-fem)
+	$(FA_MEM)
+	$(PY) bench/bench_control_fem.py --preset fem --plant $(subst $(comma),$(comma)fem:,fem:$(FEM_PLANTS)) \
+		--data $(DATA) --out $(OUT)/bench_control_fem
+else ifeq ($(BENCH),inference)
 	$(FA_MEM)
 	$(PY) bench/bench_inference.py --model $(MODELS)/fa_mem
-
-control-fem: ## make control PRESET=fem (the report's step name)
-	@$(MAKE) --no-print-directory control PRESET=fem
+else ifeq ($(BENCH),blas)
+	$(PY) bench/bench_blas.py --out $(OUT)/bench_blas $(if $(BLAS_SOLVE),--solve)
+else
+	@echo "BENCH=$(BENCH): expected fem, surrogate, control, control-fem, inference or blas"; exit 2
+endif
 
 experiments: setup ## the paper's six sliding sets for every model, best of 5 seeds on each validation setup (needs $(DATA))
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments
@@ -125,9 +117,9 @@ REPORT_FAILED := $(OUT)/report/.failed-steps
 report: setup ## the reproduction report $(OUT)/report/index.html + report.md; FULL=1 first runs the missing steps
 	@mkdir -p $(OUT)/report; : > $(REPORT_FAILED)
 ifneq ($(FULL),)
-	@for step in $$($(DEAPULL) report --outputs $(OUT) --data $(DATA) --missing-steps); do \
-		echo "[report] outputs missing: make $$step"; \
-		$(MAKE) --no-print-directory $$step || echo $$step >> $(REPORT_FAILED); \
+	@$(DEAPULL) report --outputs $(OUT) --data $(DATA) --missing-steps | while read -r args; do \
+		echo "[report] outputs missing: make $$args"; \
+		$(MAKE) --no-print-directory $$args || echo $$args >> $(REPORT_FAILED); \
 	done
 endif
 	$(DEAPULL) report --out $(OUT)/report --outputs $(OUT) --data $(DATA)

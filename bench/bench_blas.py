@@ -1,4 +1,4 @@
-"""BLAS benchmark (``make bench-blas``): what the BLAS under PETSc's direct solvers costs the FEM.
+"""BLAS benchmark (``make bench BENCH=blas``): what the BLAS under PETSc's direct solvers costs the FEM.
 
 MUMPS and UMFPACK spend their factorisations in dense BLAS kernels, and Debian links PETSc
 against whatever ``libblas.so.3`` the alternatives system points at: the reference (netlib)

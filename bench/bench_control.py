@@ -1,4 +1,4 @@
-"""MPC benchmark (``make bench-control``): wall time of one MPC step (one plan: horizon 20,
+"""MPC benchmark (``make bench BENCH=control``): wall time of one MPC step (one plan: horizon 20,
 20 iterations) of our batched box-iLQR (deapull.control.mpc) and of mpc.pytorch on the same
 problem, in one run, beside the paper's time per iteration (``deapull.paper``).
 
@@ -17,7 +17,7 @@ Ours runs twice: compiled (:mod:`deapull.control.native`, the MPC's default; tim
 :class:`~deapull.control.dynamics.CoinDynamics`, one pass).
 
 mpc.pytorch (PyPI ``mpc``) pins numpy < 2 and torch: it is installed apart from the project
-(``pip install --no-deps --target DIR mpc``, as ``make bench-control`` does) and imported
+(``pip install --no-deps --target DIR mpc``, as ``make bench BENCH=control`` does) and imported
 from ``--mpc-path``; without it the bench says so and times ours only. It runs in
 AUTO_DIFF mode (what the paper ran: per-step autograd Jacobians through the torch model)
 and in ANALYTIC mode given the fastest model we have: the compiled step and its analytic
@@ -119,7 +119,7 @@ def load_mpc_pytorch(path: str | None):
     except ImportError as err:
         return None, (f"mpc.pytorch is not importable ({err}); install it apart from the project with "
                       f"`.venv/bin/pip install --no-deps --target out/mpc_pytorch mpc` and pass --mpc-path "
-                      f"out/mpc_pytorch (make bench-control does)")
+                      f"out/mpc_pytorch (make bench BENCH=control does)")
 
 
 def main(argv=None) -> int:
@@ -148,7 +148,7 @@ def main(argv=None) -> int:
     if reach_m > target_m:
         print(f"--target-mm {args.target_mm:g}: unreachable: the model's coin (C1's) gets to {reach_m * 1e3:.3f} mm "
               f"at most at {V_MAX_V:.0f} V; pass --target-mm {abs(reach_m) * 1e3 * 0.95:.3f} (or less) to time the "
-              f"solvers on a target within reach (make bench-control BENCH_TARGET_MM=...)", file=sys.stderr)
+              f"solvers on a target within reach (make bench BENCH=control BENCH_TARGET_MM=...)", file=sys.stderr)
         return 2
     full = coin_cost(target_m)
     cost = mpc.QuadCost(full.C, full.c)             # no final term, as mpc.pytorch

@@ -1,21 +1,18 @@
-"""FEM-in-the-loop benchmark (``make bench-control-fem``): one closed-loop episode of the MPC
+"""FEM-in-the-loop benchmark (``make bench BENCH=control-fem``): one closed-loop episode of the MPC
 on each FEM plant of ``--plant``, timed per part, in one run.
 
 Per episode: ms per FEM step (``advance(V, 1 ms)`` at ``--fidelity``; make passes FIDELITY,
 default resolved; serial), ms per MPC
-plan (the compiled iLQR on f_a) and per inference update (none under ``make control-fem``'s
+plan (the compiled iLQR on f_a) and per inference update (none under ``make control PRESET=fem``'s
 fixed prior), the closed-loop wall time of the
 episode (placement, the start ramp and every step), and the ratio FEM step / MPC plan: how
 much of the loop is the plant. Beside the paper's figures (``deapull.paper``: its MPC's time
 per iteration and its ABAQUS run's time per ramp). Prints a table; ``--out``
 keeps the harness's outputs (control.csv, traces, plots) and ``bench_control_fem.json``.
 
-It takes ``deapull control``'s own flags (``deapull control --help``), and ``make
-bench-control-fem`` passes it ``make control-fem``'s (``$(FEM_CONTROL)`` in the Makefile: the
-f-memory f_a at the coin prior's median φ, 0.4 V per step tapered to 0.1 V within 0.1 mm, a
-stand-off of 2 stds, the bias filter's innovation check over 25 steps, 4,000 steps), so the two
-cannot drift apart. ``FEM_PLANTS=C1,C3`` picks the setups. ``make control-fem-infer``'s setting
-is timed with its flags (``$(FEM_CONTROL_INFER)``). The policy must be ``mpc`` alone and every
+It takes ``deapull control``'s own flags and presets (``deapull control --options``); ``make bench
+BENCH=control-fem`` passes it ``--preset fem``, ``make control PRESET=fem``'s own setting, so the two
+cannot drift apart. ``FEM_PLANTS=C1,C3`` picks the setups. The policy must be ``mpc`` alone and every
 plant a FEM plant: anything else exits 2 before any step.
 """
 from __future__ import annotations

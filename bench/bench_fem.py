@@ -1,4 +1,4 @@
-"""FEM benchmark (``make bench-fem``): coin_pull C3 on one core at the data fidelity (the scene file
+"""FEM benchmark (``make bench BENCH=fem``): coin_pull C3 on one core at the data fidelity (the scene file
 as written) and at ``preview``, their x(0.95 s) against the committed contact reference
 (``bench/reference/contact_reference.json``, ``make fem-study``), then the 8-setup sweep under
 ``mpirun -n NP``, beside the paper's ABAQUS time and the moonshot of a tenth of it.

@@ -4,7 +4,7 @@ two estimates are apart.
 
 The inference (:class:`~deapull.control.inference.OnlineInference`, ``--infer-optimizer lm``,
 ``--phi-prior coins``) watches the f_a itself as the plant, with the coin of C3 (m_c 1.36 g,
-μ_b 0.2, μ_t 0.55) under ``make control-fem``'s push (0.4 V per step, a pause of 40 steps every
+μ_b 0.2, μ_t 0.55) under ``make control PRESET=fem``'s push (0.4 V per step, a pause of 40 steps every
 200) and observation noise ``--noise`` (default 1e-4 m, the FEM goals' noise). For each buffer
 length in ``--rows`` both engines observe the same record; then each takes ``--updates`` updates
 (a batch of 256 and, for f-memory, the memory re-derived along the whole buffer every update:
@@ -12,7 +12,7 @@ length in ``--rows`` both engines observe the same record; then each takes ``--u
 the Python scan (what the f-memory f_a ran on before); ``engine="native"`` is
 ``native_mpc_memory.c`` (``deapull_memory_predict``, ``deapull_memory_scan``).
 
-    python bench/bench_inference.py --model out/models/fa_mem        # make bench-inference
+    python bench/bench_inference.py --model out/models/fa_mem        # make bench BENCH=inference
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Surrogate benchmark (``make bench-surrogate``): wall time of a 1 s rollout of each model,
+"""Surrogate benchmark (``make bench BENCH=surrogate``): wall time of a 1 s rollout of each model,
 beside the FEM's wall time and the paper's figures.
 
 A 1 s rollout is 1000 steps of Δt = 1 ms under V = 400·t (the control stage's step),

@@ -1,7 +1,7 @@
 """Sub-command ``report``: the reproduction report page from the outputs that exist.
 
 Arguments are checked before any work; bad input raises :class:`deapull.errors.InputError`
-(exit 2). ``--missing-steps`` prints the make targets whose outputs are absent, one a line
+(exit 2). ``--missing-steps`` prints the make arguments of the steps whose outputs are absent, one a line
 (``make report FULL=1`` runs them). ``--check`` opens the page in headless chromium.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ def cmd_report(args) -> int:
                                  control=args.control_dir, bench_control=args.bench_control_dir)
     if args.missing_steps:
         for name in report.missing_steps(inputs):
-            print(name)
+            print(report.STEP[name].make.removeprefix("make "))
         return 0
     if args.check == "yes":
         if find_browser(args.browser) is None:

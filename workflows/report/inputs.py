@@ -14,7 +14,7 @@ from deapull.workflows.sweep import PROTOCOL_SETS
 
 SCENE = "coin_pull"
 SETUPS = tuple(f"C{i}" for i in range(1, 9))
-#: the coins `make excitation` plays the excitation protocols on
+#: the coins `make sweep PROTOCOLS=excitation` plays the excitation protocols on
 EXCITATION_SETUPS = ("C1", "C3", "C5", "C7")
 #: the committed contact reference (``make fem-study``: studies/contact_reference.toml)
 REFERENCE_JSON = Path(__file__).resolve().parents[2] / "bench" / "reference" / "contact_reference.json"
@@ -62,10 +62,11 @@ class Step:
     command: str
     what: str
     output: str
+    target: str = ""        # the make target and its variables ("" = the step's name)
 
     @property
     def make(self) -> str:
-        return f"make {self.name}"
+        return f"make {self.target or self.name}"
 
     def hint(self, inputs: "Inputs") -> tuple[str, str]:
         """(make line, command) that make this step's outputs where ``inputs`` reads them: the
@@ -90,7 +91,8 @@ STEPS = (
     Step("fem-study", "mpirun -n 2 deapull fem-study --study contact_reference --out {out}/fem_study "
          "--publish bench/reference", "the contact reference: mesh ladders, their orders and bound", "fem_study"),
     Step("bench-fem", "python bench/bench_fem.py --out {bench_fem} --np 2",
-         "the FEM's wall time, travel error and sweep time beside ABAQUS (docs/fem_accuracy.md)", "bench_fem"),
+         "the FEM's wall time, travel error and sweep time beside ABAQUS (docs/fem_accuracy.md)", "bench_fem",
+         "bench BENCH=fem"),
     Step("fidelity", "mpirun -n 2 deapull fidelity --scene coin_pull --setup C3 --out {fidelity}",
          "the error-against-run-time ladder", "fidelity"),
     Step("stability", "mpirun -n 2 deapull stability --out {stability}",
@@ -99,7 +101,7 @@ STEPS = (
          "the paper's six experiment sets (Table II, box plot, rollouts)", "experiments"),
     Step("excitation", "mpirun -n 2 deapull sweep --scene coin_pull --setups C1,C3,C5,C7 "
          "--protocols excitation --out {excitation}", "the FEM under ramp-hold-ramp, triangle, release and "
-         "random voltages", "excitation"),
+         "random voltages", "excitation", "sweep PROTOCOLS=excitation"),
     Step("experiments-protocols", "deapull experiments-protocols --data {data} --excitation {excitation} "
          "--out {protocols} --ramp-results {experiments}", "the surrogates on held-out protocols and coins",
          "protocols"),
@@ -110,9 +112,9 @@ STEPS = (
          "--noise 1e-4 --phi-prior coins --mpc-model out/models/fa_mem --mpc-no-infer --mpc-standoff 2 "
          "--mpc-innovation-window 25 --mpc-max-rate 0.4 --max-steps 4000 --unreachable report --out "
          "{control_fem}", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)",
-         "control_fem"),
+         "control_fem", "control PRESET=fem"),
     Step("bench-control", "python bench/bench_control.py --out {bench_control}", "the MPC step beside mpc.pytorch",
-         "bench_control"),
+         "bench_control", "bench BENCH=control"),
 )
 STEP = {s.name: s for s in STEPS}
 

@@ -7,7 +7,7 @@ The points (:func:`error_time_points`):
 * **FEM ladder** — ``fidelity.csv`` (``make fidelity``): every rung's wall time and its x(t) MAE
   and coin-travel error in % of the reference rung's travel (the reference rung itself: error 0
   by definition, not a point on a log axis);
-* **FEM benchmark** — ``bench_fem.json`` (``make bench-fem``): the data fidelity and the preview
+* **FEM benchmark** — ``bench_fem.json`` (``make bench BENCH=fem``): the data fidelity and the preview
   on one core, their x(0.95 s) against the committed contact reference;
 * **contact convergence** — ``bench/reference/contact_reference.json`` (``make fem-study``): each
   case of the contact ladders, its x(0.95 s) against the ladders' Richardson value; the bound of
@@ -137,7 +137,7 @@ def error_time_points(inputs) -> list[dict]:
     points = []
     for group, path, read, make in (
             ("FEM ladder", inputs.fidelity / "fidelity.csv", fidelity_points, "make fidelity"),
-            ("FEM benchmark", inputs.bench_fem / "bench_fem.json", bench_points, "make bench-fem"),
+            ("FEM benchmark", inputs.bench_fem / "bench_fem.json", bench_points, "make bench BENCH=fem"),
             ("contact convergence", inputs.reference, reference_points, "make fem-study"),
             ("surrogate", inputs.experiments / "experiments.csv", surrogate_points, "make experiments")):
         points += read(path) if Path(path).is_file() else [_not_run(group, make, path)]
@@ -183,7 +183,7 @@ def section_error_time(rep: Report) -> Section:
     sec = Section("error-time", "Error against run time: the FEM, the surrogates and control on one plot")
     inputs = rep.inputs
     points = error_time_points(inputs)
-    ctrl = control_points(inputs.control, "make control") + control_points(inputs.control_fem, "make control-fem")
+    ctrl = control_points(inputs.control, "make control") + control_points(inputs.control_fem, "make control PRESET=fem")
     for src in sorted({p["source"] for p in points + ctrl if p["status"] != "not run" and p["source"].endswith(
             (".csv", ".json"))}):                # sorted: a set's order changes with the hash seed
         rep.source(Path(src), sec)
