@@ -56,6 +56,8 @@ def cmd_fem_study(args) -> int:
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print("\n".join(convergence.report_lines(result)))
+    if result["not_run"]:
+        print("not run yet: " + ", ".join(result["not_run"]))
     if result["failed"]:
         print("failed: " + "; ".join(f"{k}: {v}" for k, v in result["failed"].items()))
     return 1 if result["failed"] else 0

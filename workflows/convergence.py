@@ -262,7 +262,7 @@ def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: P
         raise InputError(f"--only {unknown[0]!r}: not a case of {name}; its cases: {', '.join(study['cases'])}")
     chosen = [c for c in cases if not only or c.name in only]
     run_cases(chosen, out, comm, ranks_per_case, desc=name)
-    results = [load_result(out, c) or {"case": c.name, "status": "not run", "reason": "not run yet"} for c in cases]
+    results = [load_result(out, c) or {"case": c.name, "status": "not run"} for c in cases]
     if comm.rank != 0:
         return None
     metrics = {}
@@ -270,9 +270,10 @@ def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: P
         if r and r.get("status") == "ok":
             metrics[r["case"]] = case_metrics(Path(out) / r["dataset"], float(study["study"]["time_s"]))
             metrics[r["case"]].update(dofs=r["dofs"], wall_s=r["wall_s"], ranks=r["ranks"])
-    failed = {r["case"]: r.get("reason", "") for r in results if r and r.get("status") != "ok"}
+    failed = {r["case"]: r.get("reason", "") for r in results if r.get("status") not in ("ok", "not run")}
     result = summarise(study, metrics)
     result["failed"] = failed
+    result["not_run"] = [r["case"] for r in results if r.get("status") == "not run"]
     result["commands"] = [f"deapull fem-study --study {name} --out {out}"]
     write_json(Path(out) / f"{name}.json", result, indent=2)
     if publish is not None:

@@ -51,7 +51,9 @@ def contact_reference(result: dict) -> str:
     for name, pair in result.get("pairs", {}).items():
         lines.append(f"* {name}: {pair['change_percent']:+.3f} % on x({t:g} s);")
     if result.get("failed"):
-        lines.append("* not solved: " + "; ".join(f"{k} ({v})" for k, v in result["failed"].items()) + ";")
+        lines.append("* failed: " + "; ".join(f"{k} ({v})" for k, v in result["failed"].items()) + ";")
+    if result.get("not_run"):
+        lines.append("* not solved yet: " + ", ".join(result["not_run"]) + ";")
     lines[-1] = lines[-1].rstrip(";") + "."
     return "\n".join(lines)
 
