@@ -63,9 +63,9 @@ def headline(result: dict) -> str:
     default = result["cases"].get(result.get("default_case", "default"), {})
     t = result["time_s"]
     rows = ["| what | ours | paper |", "|---|---|---|",
-            f"| FEM of one 0→400 V ramp (coin_pull C3), one core | {_f(default.get('wall_s'), '.0f')} s at "
+            f"| FEM of one 0→400 V ramp (coin_pull C3), one shared core | {_f(default.get('wall_s'), '.0f')} s at "
             f"{default.get('dofs', '–')} dofs | {PAPER_FEM_S:.0f} s (ABAQUS) |",
-            f"| coin travel, C3 at 400 V | {_f(default.get('x_end_mm'), '.3f')} mm | ≈ 1 mm (Fig. 4) |",
+            f"| coin travel, C3 at 400 V | {_f(default.get('travel_mm'), '.3f')} mm | ≈ 1 mm (Fig. 4) |",
             f"| mesh-convergence bound on x({t:g} s) (two ladders + the step) | {_f(result['bound_percent'], '.2f')} % "
             "| – |",
             f"| data fidelity against the Richardson value | {_f(result.get('default_error_percent'), '+.2f')} % | – |",

@@ -69,7 +69,7 @@ def test_a_results_block_is_rewritten_from_its_file(tmp_path):
     page.write_text("a\n<!-- results:headline -->\nold\n<!-- /results:headline -->\nb\n")
     assert "is missing" in docs_tables.render(page.read_text(), tmp_path)
     result = {"time_s": 0.95, "bound_percent": 0.5, "default_error_percent": 1.0, "default_case": "default",
-              "cases": {"default": {"wall_s": 60.0, "dofs": 100, "x_end_mm": -1.2, "min_points": 25}}}
+              "cases": {"default": {"wall_s": 60.0, "dofs": 100, "travel_mm": 1.2, "min_points": 25}}}
     (tmp_path / "bench" / "reference" / "contact_reference.json").write_text(json.dumps(result))
     text = docs_tables.render(page.read_text(), tmp_path)
     assert "| 60 s at 100 dofs | 130 s (ABAQUS) |" in text and "old" not in text and text.endswith("\nb\n")
