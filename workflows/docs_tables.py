@@ -12,11 +12,10 @@ import re
 from pathlib import Path
 
 from deapull.io import atomic_write
+from deapull.paper import ABAQUS_S
 
 REPO = Path(__file__).resolve().parents[1]
 PAGES = ("README.md", "docs/physics.md", "docs/fem_accuracy.md")
-#: the paper's figures that ours stand beside (Lahariya et al. 2022): the FEM's run time (ABAQUS, Sec. V)
-PAPER_FEM_S = 130.0
 
 
 def _f(value, fmt: str) -> str:
@@ -64,7 +63,7 @@ def headline(result: dict) -> str:
     t = result["time_s"]
     rows = ["| what | ours | paper |", "|---|---|---|",
             f"| FEM of one 0→400 V ramp (coin_pull C3), one shared core | {_f(default.get('wall_s'), '.0f')} s at "
-            f"{default.get('dofs', '–')} dofs | {PAPER_FEM_S:.0f} s (ABAQUS) |",
+            f"{default.get('dofs', '–')} dofs | {ABAQUS_S:.0f} s (ABAQUS) |",
             f"| coin travel, C3 at 400 V | {_f(default.get('travel_mm'), '.3f')} mm | ≈ 1 mm (Fig. 4) |",
             f"| mesh-convergence bound on x({t:g} s) (two ladders + the step) | {_f(result['bound_percent'], '.2f')} % "
             "| – |",
