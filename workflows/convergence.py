@@ -7,7 +7,8 @@ A study file (``studies/<name>.toml``) has
 * ``[study]``: ``scene``, ``setup``, ``time_s`` (the time at which x(t) is compared),
   ``safety_factor`` (Roache's F_s of the grid-convergence index, 1.25 for three levels);
 * ``[cases]``: each case a list of ``--set`` overrides on the scene file as written;
-* ``[ladders.<name>]``: ``cases`` (three, coarse to fine) and ``ratio`` (the refinement ratio r);
+* ``[ladders.<name>]``: ``cases`` (three, coarse to fine) and ``ratio`` (the refinement ratio r); the
+  ladders share one case, from which each refines its own direction;
 * ``[checks]``: ``dt`` (a pair: the change from halving the step, added to the bound whole),
   ``default`` (the data fidelity's case, compared with the Richardson value) and ``pairs`` (name ->
   [case, case]: two-level changes reported beside the bound, e.g. the contact rule and the penalty).
@@ -18,7 +19,8 @@ ladder), the Richardson value f₁ + (f₁ − f₂)/(r^p − 1), and the fine l
 GCI = F_s |f₁ − f₂| / |f₁| / (r^p − 1). The quantities are x at ``time_s`` and the mean absolute
 difference of x(t) between consecutive levels (its order from the ratio of the two differences).
 The bound is the sum of the ladders' GCI on x(``time_s``) and the step's change: the two ladders
-refine independent directions, each holding the other at its middle level.
+refine independent directions from their shared case, and with errors that add the reference is
+Σ R_ladder − (n − 1) x(shared case).
 
     deapull fem-study --study contact_reference --out out/fem_study [--publish bench/reference]
 """
@@ -189,10 +191,10 @@ def summarise(study: dict, metrics: dict) -> dict:
     gcis = [lad["gci_x_at_t_percent"] for lad in ladders.values()]
     complete = all(lad["complete"] for lad in ladders.values()) and len(ladders) == len(study["ladders"])
     out["bound_percent"] = (sum(gcis) + dt_change) if complete and gcis else math.nan
-    # the reference value: the shared middle case corrected by each ladder's Richardson step
-    middle = _shared_middle(study)
-    if complete and middle in metrics and richardson and all(np.isfinite(richardson)):
-        base = metrics[middle]["x_at_t_mm"]
+    # the reference value: with errors that add, x* = Σ R_ladder - (n - 1) x(shared case)
+    shared = _shared_case(study)
+    if complete and shared in metrics and richardson and all(np.isfinite(richardson)):
+        base = metrics[shared]["x_at_t_mm"]
         out["reference_x_at_t_mm"] = base + sum(rv - base for rv in richardson)
     else:
         out["reference_x_at_t_mm"] = math.nan
@@ -206,9 +208,10 @@ def summarise(study: dict, metrics: dict) -> dict:
     return out
 
 
-def _shared_middle(study: dict) -> str:
-    middles = {lad["cases"][1] for lad in study["ladders"].values()}
-    return middles.pop() if len(middles) == 1 else ""
+def _shared_case(study: dict) -> str:
+    """The one case every ladder passes through (its levels differ only in that ladder's direction)."""
+    common = set.intersection(*(set(lad["cases"]) for lad in study["ladders"].values()))
+    return common.pop() if len(common) == 1 else ""
 
 
 def bound_from_rungs(result: dict) -> float:
