@@ -39,7 +39,7 @@ def preset_path(name: str) -> Path:
 def _option_value(action, key: str, value, source: str):
     """``value`` checked against the option's type (the parser's own conversion for strings);
     ``source`` names where it was set, the key after it (``--set control.`` or ``preset NAME: control.``)."""
-    default = action.default
+    default = action.real_default
     if isinstance(action, argparse._StoreTrueAction) or isinstance(default, bool):
         if not isinstance(value, bool):
             raise InputError(f"{source}{key} = {value!r}: expected true or false")
@@ -63,6 +63,7 @@ def apply_preset(args, parser) -> None:
     from deapull.scene import _parse_value
     actions = {a.dest: a for a in parser._actions if a.dest not in NOT_IN_PRESETS and a.dest != "help"}
     allowed = ", ".join(sorted(actions))
+    given = {dest for dest in actions if hasattr(args, dest)}      # the flags on the command line
     settings = {}
     if args.preset:
         path = preset_path(args.preset)
@@ -73,7 +74,7 @@ def apply_preset(args, parser) -> None:
         for key, value in table.items():
             if key not in actions:
                 raise InputError(f"preset {path.name}: control.{key}: unknown key; allowed: {allowed}")
-            if getattr(args, key) == actions[key].default:
+            if key not in given:
                 settings[key] = _option_value(actions[key], key, value, f"preset {path.name}: control.")
     scene_sets = []
     for assignment in args.overrides:
@@ -86,6 +87,9 @@ def apply_preset(args, parser) -> None:
             raise InputError(f"--set control.{key}: unknown key; allowed: {allowed}")
         settings[key] = _option_value(actions[key], key, _parse_value(text.strip()), "--set control.")
     args.overrides = scene_sets
+    for dest, action in actions.items():      # the options neither given nor set: their defaults
+        if dest not in given and dest not in settings:
+            settings[dest] = action.real_default
     for key, value in settings.items():
         setattr(args, key, value)
     for key in ("policy", "plant", "out"):
@@ -100,7 +104,7 @@ def options_text(parser) -> str:
     for a in parser._actions:
         if a.dest in NOT_IN_PRESETS or a.dest == "help":
             continue
-        lines.append(f"  {a.dest} (default {a.default!r}): {a.full_help}")
+        lines.append(f"  {a.dest} (default {a.real_default!r}): {a.full_help}")
     return "\n".join(lines)
 
 
@@ -280,6 +284,10 @@ def register(sub) -> None:
         action.full_help = action.help
         if action.dest not in LISTED and action.dest != "help":
             action.help = argparse.SUPPRESS
+        # an option absent from the command line is absent from the namespace, so that a preset can
+        # tell it from one given at its default value; apply_preset fills in the defaults
+        if action.dest not in NOT_IN_PRESETS and action.dest != "help":
+            action.real_default, action.default = action.default, argparse.SUPPRESS
     p.set_defaults(func=cmd_control, parser=p)
     register_dagger(sub)
 

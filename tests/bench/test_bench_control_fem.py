@@ -1,5 +1,5 @@
-"""``make bench-control-fem`` times ``make control-fem``'s own MPC: the bench takes ``deapull
-control``'s flags, and the Makefile passes it ``$(FEM_CONTROL)``. Read off ``make -n`` (nothing
+"""``make bench BENCH=control-fem`` times ``make control PRESET=fem``'s own MPC: the bench takes
+``deapull control``'s flags and presets, and the Makefile passes it ``--preset fem``. Read off ``make -n`` (nothing
 runs): the two targets' command lines give the same MPC settings, and the bench refuses what it
 does not time before any step."""
 from __future__ import annotations
@@ -38,16 +38,16 @@ def dry_run(target: str, *variables: str, program: str, first: str | None = None
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
 def test_the_bench_runs_make_control_fems_mpc_on_the_plants_asked_for():
-    """Broken once: the recipe given its own --mpc-standoff 0 after $(FEM_CONTROL) (the stand-off
-    then differs: 0.0 against 2.0)."""
+    """Broken once: the bench's recipe given its own --mpc-standoff 0 after the preset (the
+    stand-off then differs: 0.0 against 2.0)."""
     mod = bench()
-    timed = mod.config_of(dry_run("bench-control-fem", "FEM_PLANTS=C1,C3", program="bench_control_fem.py"))
-    run = mod.config_of(dry_run("control-fem", program="deapull", first="control"))
+    timed = mod.config_of(dry_run("bench", "BENCH=control-fem", "FEM_PLANTS=C1,C3", program="bench_control_fem.py"))
+    run = mod.config_of(dry_run("control", "PRESET=fem", program="deapull", first="control"))
     assert [p.name for p in timed.plants] == ["fem:C1", "fem:C3"]
     differ = {f.name: (getattr(timed, f.name), getattr(run, f.name)) for f in dataclasses.fields(timed)
               if getattr(timed, f.name) != getattr(run, f.name)}
     assert set(differ) == {"plants", "out"}, differ
-    assert timed.mpc_standoff == 2.0 and timed.mpc_no_infer and timed.overrides      # resolved, as the datasets
+    assert timed.mpc_standoff == 2.0 and timed.mpc_no_infer and timed.mpc_max_rate_V == 0.4   # the fem preset
 
 
 @pytest.mark.parametrize("argv, named", [

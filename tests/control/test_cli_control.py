@@ -333,13 +333,17 @@ def _parsed(*argv):
 def test_a_preset_sets_the_options_that_flags_and_set_control_override(tmp_path):
     """``--preset surrogate`` gives make control's setting; a flag given wins over it, and
     ``--set control.KEY=VALUE`` over both; the scene's own --set keys pass through to the FEM plant.
-    Broken once with the preset applied after the flags: --episodes 3 came back as 10."""
+    Broken once with the preset applied after the flags: --episodes 3 came back as 10; and a flag was
+    taken as not given when it equalled its default (the bench test caught --mpc-standoff 0)."""
     args = _parsed("--preset", "surrogate", "--out", str(tmp_path), "--episodes", "3",
                    "--set", "control.mpc_standoff=1.5", "--set", "control.mpc_no_reach_gate=false",
                    "--set", "mesh.n_length=4")
     assert args.policy == "mpc,sac,pd,heur" and args.plant == "surrogate:C1,surrogate:C2"
     assert args.episodes == 3 and args.mpc_standoff == 1.5 and args.mpc_no_reach_gate is False
     assert args.mpc_model == "out/models/fa_push" and args.overrides == ["mesh.n_length=4"]
+    # a flag given at its default value still wins over the preset (the stand-off back to 0)
+    assert _parsed("--preset", "surrogate", "--out", str(tmp_path), "--mpc-standoff", "0").mpc_standoff == 0.0
+    assert _parsed("--preset", "surrogate", "--out", str(tmp_path)).mpc_standoff == 2.0
     fem = _parsed("--preset", "fem", "--out", str(tmp_path))
     assert fem.plant.count("fem:") == 8 and fem.mpc_max_rate == 0.4 and fem.unreachable == "report"
 
