@@ -54,14 +54,15 @@ def test_the_points_are_exactly_those_of_the_result_files(tmp_path):
     ref = [r for r in rows if r["status"].startswith("reference")]
     assert [(r["label"], r["error_pct"]) for r in ref] == [("ref", "0.0")]      # error 0: not a log point
     not_run = {r["group"]: r["make"] for r in rows if r["status"] == "not run"}
-    assert not_run == {"FEM benchmark": "make bench-fem", "contact convergence": "make fem-study"}
+    assert not_run == {"FEM benchmark": "make bench BENCH=fem", "contact convergence": "make fem-study"}
     assert [r["label"] for r in rows if r["group"] == "paper"] == ["ABAQUS (Lahariya et al.)"]
     control = _read(out / "tables" / "error-time-control.csv")
-    assert {(r["status"], r["make"]) for r in control} == {("not run", "make control"), ("not run", "make control-fem")}
+    assert {(r["status"], r["make"]) for r in control} == {("not run", "make control"),
+                                                          ("not run", "make control PRESET=fem")}
     html = (out / "index.html").read_text()
     assert 'src="img/error_time.png"' in html and 'href="tables/error-time-points.csv"' in html
     assert "error_time.png" in summary["images"]
-    assert "make fem-study" in html and "make bench-fem" in html
+    assert "make fem-study" in html and "make bench BENCH=fem" in html
     # the section's Sources in one order whatever the hash seed: sorted (broken once: a set's order)
     section = html.split('<section id="error-time">')[1].split("</section>")[0]
     sources = re.findall(r"<code>([^<]*)</code></a>", section.split("Sources:")[1])
