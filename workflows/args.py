@@ -7,8 +7,10 @@ the same in every command; :func:`load_scene` validates them like the file (bad 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from deapull import scene as scenes
+from deapull.errors import InputError
 
 
 def add_scene_args(p: argparse.ArgumentParser, scene: bool = True, setup: bool = True,
@@ -47,3 +49,18 @@ def names(text: str) -> list[str] | None:
     """``"a, b"`` → ``["a", "b"]``; an empty text → None (meaning: all)."""
     out = [s.strip() for s in text.split(",") if s.strip()]
     return out or None
+
+
+def shipped_toml(name_or_path, folder: Path, option: str, what: str) -> Path:
+    """A TOML file shipped in ``folder`` by name (``folder/NAME.toml``), or a path to one; an unknown
+    name or a missing file is an :class:`InputError` naming ``option`` and the shipped names."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml":
+        if not p.is_file():
+            raise InputError(f"{option} {str(name_or_path)!r}: no such file")
+        return p
+    path = Path(folder) / f"{name_or_path}.toml"
+    if not path.is_file():
+        shipped = ", ".join(sorted(q.stem for q in Path(folder).glob("*.toml")))
+        raise InputError(f"{option} {str(name_or_path)!r}: unknown {what}; shipped: {shipped}")
+    return path

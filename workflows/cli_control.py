@@ -11,7 +11,7 @@ import tomllib
 from pathlib import Path
 
 from deapull.errors import InputError
-from deapull.workflows.args import add_fidelity_arg, overrides_of
+from deapull.workflows.args import add_fidelity_arg, overrides_of, shipped_toml
 
 
 PRESET_DIR = Path(__file__).resolve().parents[1] / "control" / "presets"
@@ -24,16 +24,7 @@ LISTED = ("preset", "policy", "plant", "noise", "episodes", "seed", "target_mm",
 
 def preset_path(name: str) -> Path:
     """A shipped preset by name (control/presets/NAME.toml) or a path to a TOML file."""
-    p = Path(name)
-    if p.suffix == ".toml":
-        if not p.is_file():
-            raise InputError(f"--preset {name!r}: no such file")
-        return p
-    path = PRESET_DIR / f"{name}.toml"
-    if not path.is_file():
-        shipped = ", ".join(sorted(q.stem for q in PRESET_DIR.glob("*.toml")))
-        raise InputError(f"--preset {name!r}: unknown preset; shipped: {shipped}")
-    return path
+    return shipped_toml(name, PRESET_DIR, "--preset", "preset")
 
 
 def _option_value(action, key: str, value, source: str):

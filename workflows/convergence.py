@@ -37,6 +37,7 @@ import numpy as np
 from deapull import dataset
 from deapull.errors import InputError
 from deapull.io import write_json
+from deapull.workflows.args import shipped_toml
 
 log = logging.getLogger(__name__)
 
@@ -48,16 +49,7 @@ GRID = np.linspace(0.0, 1.0, 1001)
 
 def study_path(name_or_path: str | Path) -> Path:
     """A study shipped in ``studies/`` by name, or a path to a TOML file."""
-    p = Path(name_or_path)
-    if p.suffix == ".toml":
-        if not p.is_file():
-            raise InputError(f"--study {str(name_or_path)!r}: no such file")
-        return p
-    candidate = STUDY_DIR / f"{name_or_path}.toml"
-    if not candidate.is_file():
-        shipped = ", ".join(sorted(q.stem for q in STUDY_DIR.glob("*.toml")))
-        raise InputError(f"--study {str(name_or_path)!r}: unknown study; shipped: {shipped}")
-    return candidate
+    return shipped_toml(name_or_path, STUDY_DIR, "--study", "study")
 
 
 def load_study(name_or_path: str | Path) -> dict:
