@@ -709,6 +709,41 @@ def from_resolved_toml(text: str) -> Scene:
     return from_dict(raw)
 
 
+#: the sections that say how finely a scene is solved (its fidelity), not what it holds
+DISCRETISATION = ("mesh", "solver", "contact", "time")
+
+
+def fidelity_of_resolved(text: str, scene_file: str | Path | None = None) -> tuple[str | None, str]:
+    """The fidelity a dataset was made at, from its ``scene_toml`` attribute.
+
+    Returns
+    -------
+    (name, fingerprint)
+        ``name``: a ``[fidelities.NAME]`` of the scene file (``scene_file``, default the shipped
+        scene the text names), "" for the file as written, None for other overrides or a text
+        that does not parse; ``fingerprint``: 12 hex digits of the SHA-256 of the sections of
+        :data:`DISCRETISATION` ("" when the text does not parse), equal for two runs solved alike.
+    """
+    import hashlib
+    import json
+    try:
+        made = from_resolved_toml(text)
+    except (tomllib.TOMLDecodeError, InputError):
+        return None, ""
+    made_dict = made.to_dict()
+    fingerprint = hashlib.sha256(json.dumps({k: made_dict.get(k) for k in DISCRETISATION}, sort_keys=True,
+                                            default=str).encode()).hexdigest()[:12]
+    source = scene_file or made.scene.name
+    try:
+        names = ("", *fidelities_of(source))
+        for name in names:
+            if load(source, setup=made.setup, overrides=fidelity_overrides(source, name)).to_dict() == made_dict:
+                return name, fingerprint
+    except InputError:
+        pass
+    return None, fingerprint
+
+
 def keys_markdown() -> str:
     """docs/scene_keys.md: every scene key with its default, what is allowed and what it means
     (``deapull show-scene --keys`` prints it; a test holds the page equal to it)."""

@@ -14,6 +14,7 @@ Every check names the file and the variable, so a bad sweep fails before any tra
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +22,7 @@ import numpy as np
 import torch
 
 from deapull import dataset
+from deapull import scene as scenes
 from deapull.dataset import DatasetError   # re-exported: the surrogate's readers raise it
 from deapull.errors import InputError
 from deapull.surrogate.phi import Phi
@@ -64,6 +66,13 @@ class SetupData:
         μ_t p s/√(|s|² + ε_v²) for a slip rate s (NaN when the file does not say).
     wall_time_s : float
         The FEM run's wall time (attribute ``wall_time_total_s``; NaN when absent).
+    sha256 : str
+        The file's SHA-256 (hex).
+    fidelity : str or None
+        The scene fidelity the run was made at ("" the scene file as written, a
+        ``[fidelities.NAME]``, None other overrides; :func:`deapull.scene.fidelity_of_resolved`).
+    fidelity_id : str
+        The fingerprint of its mesh, solver, contact and time sections ("" without ``scene_toml``).
     """
 
     name: str
@@ -81,6 +90,9 @@ class SetupData:
     wall_time_s: float
     mu_t: float = float("nan")
     slip_rate_reg_m_s: float = float("nan")
+    sha256: str = ""
+    fidelity: str | None = None
+    fidelity_id: str = ""
 
     @property
     def n_steps(self) -> int:
@@ -167,9 +179,12 @@ def load_setup(path: str | Path) -> SetupData:
         raise DatasetError(f"{run.path}: variable 'dt': non-positive time step {dt[bad]:g} s at step {bad}")
     optional = {field: run.number(name, positive=False, default=float("nan"))
                 for name, field in OPTIONAL_ATTRS.items()}
+    fidelity, fidelity_id = scenes.fidelity_of_resolved(str(run.attrs.get("scene_toml", "")))
     return SetupData(name=run.path.stem, path=run.path, **columns, mass_kg=run.number("coin_mass_kg"),
                      mu_b=run.number("coin_mu_b"), gravity_m_s2=run.number("gravity_m_s2"),
-                     wall_time_s=float(run.attrs.get("wall_time_total_s", float("nan"))), **optional)
+                     wall_time_s=float(run.attrs.get("wall_time_total_s", float("nan"))), **optional,
+                     sha256=hashlib.sha256(run.path.read_bytes()).hexdigest(), fidelity=fidelity,
+                     fidelity_id=fidelity_id)
 
 
 def require_tip_contact(data: SetupData) -> None:

@@ -24,7 +24,7 @@ from tqdm import tqdm
 from deapull.errors import InputError
 from deapull.io import write_csv, write_json, write_text
 from deapull.paper import ABAQUS_S, TABLE2
-from deapull.surrogate import store
+from deapull.surrogate import ensemble, store
 from deapull.surrogate.data import load_sweep
 from deapull.surrogate.evaluate import METRICS, evaluate
 from deapull.surrogate.models import KINDS
@@ -37,10 +37,11 @@ SETS = {i: (f"C{i}", f"C{i + 1}", f"C{i + 2}") for i in range(1, 7)}
 #: Table II of the paper (MAE over the six test setups) and its §VI-A timings (deapull.paper)
 PAPER = TABLE2
 PAPER_FEM_S = ABAQUS_S
-COLUMNS = ("set", "train", "val", "test", "model", "mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N",
+COLUMNS = ("repeat", "set", "train", "val", "test", "model", "mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N",
            "x_error_pct_travel", "max_abs_x_error_m", "final_x_error_m", "travel_m", "rollout_ms", "engine",
            "diverged", "best_epoch", "epochs_run", "train_time_s", "out_of_range_warnings", "seed", "restarts",
-           "val_x_error_pct_travel", "val_loss", "restart_seeds", "restart_val_x_error_pct", "restart_val_loss")
+           "val_x_error_pct_travel", "val_loss", "restart_seeds", "restart_val_x_error_pct", "restart_val_loss",
+           "band_k", "band_coverage")
 
 
 #: the kinds the sets run by default: those one training coin identifies (not f-patch)
@@ -48,7 +49,7 @@ SET_KINDS = tuple(k for k, cls in KINDS.items() if cls.training_coins == 1)
 
 
 def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=SET_KINDS,
-        sets=tuple(SETS), restarts: dict | None = None) -> list[dict]:
+        sets=tuple(SETS), restarts: dict | None = None, repeats: int = 1) -> list[dict]:
     """Train and evaluate every model kind on every set; write the tables and plots.
 
     Parameters
@@ -65,11 +66,15 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=SET_
         Which of the six sets to run.
     restarts : dict, optional
         Restarts per kind (``base.restarts`` for a kind not in it).
+    repeats : int
+        Independent repeats of every (set, kind): repeat r trains the seeds ``base.seed`` +
+        r·restarts onward; the tables show the mean over repeats and its spread. Repeat 0's
+        models are kept under ``set<i>/<kind>/``, the others under ``repeats/<r>/set<i>/<kind>/``.
 
     Returns
     -------
     list of dict
-        One row per (set, model), the columns of :data:`COLUMNS`.
+        One row per (repeat, set, model), the columns of :data:`COLUMNS`.
     """
     kinds = list(kinds)
     for i in sets:
@@ -78,35 +83,50 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=SET_
     for kind in kinds:
         if kind not in KINDS:
             raise InputError(f"model {kind!r} is not a model; choose from {', '.join(KINDS)}")
+    if repeats < 1:
+        raise InputError(f"repeats = {repeats}: at least 1")
     needed = sorted({name for i in sets for name in SETS[i]}, key=lambda n: int(n[1:]))
     data = load_sweep(data_dir, needed)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    rows, curves = [], {}
-    jobs = [(i, kind) for i in sets for kind in kinds]
-    for i, kind in tqdm(jobs, desc="experiments", unit="model", disable=None):
+    rows, curves, bands = [], {}, {}
+    jobs = [(r, i, kind) for r in range(repeats) for i in sets for kind in kinds]
+    for r, i, kind in tqdm(jobs, desc="experiments", unit="model", disable=None):
         train_name, val_name, test_name = SETS[i]
-        result = train(replace(base, kind=kind, restarts=(restarts or {}).get(kind, base.restarts)),
-                       [data[train_name]], data[val_name])
-        store.save(result.model, out / f"set{i}" / kind, result.summary(), result.history)
+        n = (restarts or {}).get(kind, base.restarts)
+        result = train(replace(base, kind=kind, restarts=n, seed=base.seed + r * n), [data[train_name]],
+                       data[val_name])
+        test = data[test_name]
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", OutOfRangeWarning)
-            ev = evaluate(result.model, data[test_name])
+            ev = evaluate(result.model, test)
         for w in caught:
             log.info("set %d: %s", i, w.message)
-        rows.append({**{k: ev.metrics.get(k) for k in COLUMNS}, "set": i, "train": train_name, "val": val_name,
-                     "test": test_name, "model": kind, "best_epoch": result.best_epoch,
-                     "epochs_run": len(result.history), "train_time_s": result.wall_time_s,
-                     "out_of_range_warnings": len(caught), **restart_columns(result)})
-        curves[(i, kind)] = ev
+        folder = out / f"set{i}" / kind if r == 0 else out / "repeats" / str(r) / f"set{i}" / kind
+        store.save(result.model, folder, result.summary(), result.history, test=ev.metrics)
+        row = {**{k: ev.metrics.get(k) for k in COLUMNS}, "repeat": r, "set": i, "train": train_name,
+               "val": val_name, "test": test_name, "model": kind, "best_epoch": result.best_epoch,
+               "epochs_run": len(result.history), "train_time_s": result.wall_time_s,
+               "out_of_range_warnings": len(caught), **restart_columns(result)}
+        if len(result.members) >= 2:
+            k = ensemble.calibrate(result.members, result.val_sets, result.phis)
+            b = ensemble.band(result.members, k, test, result.model.phi_of(test))
+            row["band_k"], row["band_coverage"] = k, b.coverage(test.x)
+            if r == 0:
+                ensemble.save(result, folder, k)
+                bands[(i, kind)] = b
+        rows.append(row)
+        if r == 0:
+            curves[(i, kind)] = ev
     text = summary_table(rows, kinds) + "\n\n" + per_set_table(rows, kinds)
     write_text(out / "table.txt", text + "\n")
     write_csv(out / "experiments.csv", rows, COLUMNS)
     write_json(out / "experiments.json", {"rows": rows, "paper": PAPER, "paper_fem_s": PAPER_FEM_S,
+                                          "repeats": repeats, "band_level": ensemble.LEVEL,
                                           "fem_wall_time_s": {n: d.wall_time_s for n, d in data.items()},
                                           "config": {k: v for k, v in vars(base).items() if k != "kind"}}, indent=2)
     plot_boxes(curves, kinds, sets, out / "x_error_boxplot.png")
-    plot_rollouts(curves, kinds, sets, out / "rollouts.png")
+    plot_rollouts(curves, kinds, sets, out / "rollouts.png", bands)
     return rows
 
 
@@ -128,9 +148,23 @@ def _label(kind: str) -> str:
 
 
 def _mean(rows: list[dict], kind: str, key: str):
-    """Mean of ``key`` over the sets where ``kind`` did not diverge (None if none)."""
-    values = [r[key] for r in rows if r["model"] == kind and r[key] is not None and not r["diverged"]]
-    return float(np.mean(values)) if values else None
+    """Mean of ``key`` over the sets where ``kind`` did not diverge (None if none), averaged over the
+    repeats."""
+    return _mean_spread(rows, kind, key)[0]
+
+
+def _mean_spread(rows: list[dict], kind: str, key: str) -> tuple:
+    """(mean over repeats, standard deviation over repeats) of each repeat's mean of ``key`` over
+    the sets where ``kind`` did not diverge; (None, None) if none."""
+    per_repeat = []
+    for r in sorted({row.get("repeat", 0) for row in rows}):
+        values = [row[key] for row in rows if row["model"] == kind and row.get("repeat", 0) == r
+                  and row.get(key) is not None and not row["diverged"]]
+        if values:
+            per_repeat.append(float(np.mean(values)))
+    if not per_repeat:
+        return None, None
+    return float(np.mean(per_repeat)), float(np.std(per_repeat))
 
 
 def _grid(lines: list[list[str]]) -> str:
@@ -139,12 +173,20 @@ def _grid(lines: list[list[str]]) -> str:
                      for line in lines)
 
 
+def _with_spread(mean, spread, scale: float, repeats: int) -> str:
+    if mean is None:
+        return "-"
+    return f"{mean / scale:.3g}" + (f" ± {spread / scale:.2g}" if repeats > 1 else "")
+
+
 def summary_table(rows: list[dict], kinds=SET_KINDS) -> str:
-    """Table II: mean over the sets run of each error, ours beside the paper's.
+    """Table II: mean over the sets run of each error, ours beside the paper's; with repeats, the
+    mean over repeats ± its standard deviation.
 
     Rollouts that diverged are left out of the means and counted in the last row.
     """
     keys = ("mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N", "x_error_pct_travel", "rollout_ms")
+    repeats = len({r.get("repeat", 0) for r in rows})
     head = ["mean over sets"] + [f"{_label(k)}" for k in kinds] + [f"paper {_label(k)}" for k in kinds
                                                                    if any(k in PAPER[q] for q in PAPER)]
     paper_kinds = [k for k in kinds if any(k in PAPER[q] for q in PAPER)]
@@ -153,8 +195,7 @@ def summary_table(rows: list[dict], kinds=SET_KINDS) -> str:
         label, unit, scale = METRICS[key]
         cells = [f"{label} [{unit}]"]
         for kind in kinds:
-            v = _mean(rows, kind, key)
-            cells.append("-" if v is None else f"{v / scale:.3g}")
+            cells.append(_with_spread(*_mean_spread(rows, kind, key), scale, repeats))
         for kind in paper_kinds:
             v = PAPER.get(key, {}).get(kind)
             cells.append("-" if v is None else f"{v / scale:.3g}")
@@ -162,35 +203,63 @@ def summary_table(rows: list[dict], kinds=SET_KINDS) -> str:
     lines.append(["diverged rollouts"] + [str(sum(r["diverged"] for r in rows if r["model"] == k)) for k in kinds]
                  + ["-"] * len(paper_kinds))
     n_sets = len({r["set"] for r in rows})
-    return (f"Simulation error of a recursive 1 s rollout on the test setup, mean over {n_sets} set(s)\n"
+    return (f"Simulation error of a recursive 1 s rollout on the test setup, mean over {n_sets} set(s)"
+            + (f", mean ± std over {repeats} repeats of independent seeds" if repeats > 1 else "") + "\n"
             f"(paper: Table II, ABAQUS FEM 1 s in {PAPER_FEM_S:.0f} s; paper timings are of its own code)\n"
             + _grid(lines))
 
 
+def _set_value(rows: list[dict], i: int, kind: str, key: str) -> tuple:
+    """(mean over repeats of ``key`` on set ``i``, its std, rollouts that diverged, repeats)."""
+    mine = [r for r in rows if r["set"] == i and r["model"] == kind]
+    values = [r[key] for r in mine if not r["diverged"] and r.get(key) is not None]
+    diverged = sum(r["diverged"] for r in mine)
+    if not values:
+        return None, None, diverged, len(mine)
+    return float(np.mean(values)), float(np.std(values)), diverged, len(mine)
+
+
+def _set_cell(rows, i, kind, key, scale) -> str:
+    mean, spread, diverged, n = _set_value(rows, i, kind, key)
+    if mean is None:
+        return "diverged"
+    text = f"{mean / scale:.3g}" + (f"±{spread / scale:.2g}" if n > 1 else "")
+    return text + (f" ({diverged}/{n} div.)" if diverged else "")
+
+
 def per_set_table(rows: list[dict], kinds=SET_KINDS) -> str:
-    """MAE of x and x error (% of travel) per set and model, and which f leads."""
+    """MAE of x and x error (% of travel) per set and model (means over repeats), the ensemble band's
+    coverage of the test run, and which f leads."""
     sets = sorted({r["set"] for r in rows})
-    head = ["set (train/val/test)"] + [f"{_label(k)} x [1e-4 m]" for k in kinds] + [f"{_label(k)} [%]" for k in kinds]
+    banded = [k for k in kinds if any(r.get("band_coverage") is not None for r in rows if r["model"] == k)]
+    head = (["set (train/val/test)"] + [f"{_label(k)} x [1e-4 m]" for k in kinds]
+            + [f"{_label(k)} [%]" for k in kinds]
+            + [f"{_label(k)} {round(100 * ensemble.LEVEL)} % band covers [%]" for k in banded])
     lines = [head]
-    by = {(r["set"], r["model"]): r for r in rows}
     for i in sets:
         r0 = next(r for r in rows if r["set"] == i)
         cells = [f"{i} ({r0['train']}/{r0['val']}/{r0['test']})"]
-        cells += [_cell(by[(i, k)], "mae_x_m", 1e-4) for k in kinds]
-        cells += [_cell(by[(i, k)], "x_error_pct_travel", 1.0) for k in kinds]
+        cells += [_set_cell(rows, i, k, "mae_x_m", 1e-4) for k in kinds]
+        cells += [_set_cell(rows, i, k, "x_error_pct_travel", 1.0) for k in kinds]
+        cells += [_set_cell(rows, i, k, "band_coverage", 0.01) for k in banded]
         lines.append(cells)
     verdicts = []
     baselines = [k for k in kinds if not KINDS[k].physics]
+
+    def mae(i, kind):
+        mean = _set_value(rows, i, kind, "mae_x_m")[0]
+        return math.inf if mean is None else mean
     for f_kind in (k for k in kinds if KINDS[k].physics):
         if baselines:
-            ahead = sum(all(by[(i, f_kind)]["mae_x_m"] < by[(i, b)]["mae_x_m"] for b in baselines) for i in sets)
+            ahead = sum(all(mae(i, f_kind) < mae(i, b) for b in baselines) for i in sets)
             verdicts.append(f"{_label(f_kind)} ahead of {' and '.join(_label(b) for b in baselines)} "
                             f"(MAE x) on {ahead}/{len(sets)} sets")
+    for kind in banded:
+        cover = [r["band_coverage"] for r in rows if r["model"] == kind and r.get("band_coverage") is not None]
+        verdicts.append(f"{_label(kind)}: its {round(100 * ensemble.LEVEL)} % ensemble band covers "
+                        f"{100 * np.mean(cover):.1f} % of the test runs' points (mean of {len(cover)} rollouts, "
+                        f"lowest {100 * min(cover):.1f} %)")
     return _grid(lines) + ("\n" + "\n".join(verdicts) if verdicts else "")
-
-
-def _cell(row: dict, key: str, scale: float) -> str:
-    return "diverged" if row["diverged"] else f"{row[key] / scale:.3g}"
 
 
 def plot_boxes(curves: dict, kinds, sets, path: Path) -> Path:
@@ -221,8 +290,9 @@ def plot_boxes(curves: dict, kinds, sets, path: Path) -> Path:
     return path
 
 
-def plot_rollouts(curves: dict, kinds, sets, path: Path) -> Path:
-    """x(t) of the FEM and of each model on each set's test setup."""
+def plot_rollouts(curves: dict, kinds, sets, path: Path, bands: dict | None = None) -> Path:
+    """x(t) of the FEM and of each model on each set's test setup, with the ensemble band of the
+    kinds that have one (``bands[(set, kind)]``)."""
     import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a figure is drawn
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -236,6 +306,10 @@ def plot_rollouts(curves: dict, kinds, sets, path: Path) -> Path:
             ev = curves[(i, kind)]
             label = _label(kind) + (" (diverged)" if ev.metrics["diverged"] else "")
             ax.plot(ev.t, ev.x_model * 1e3, color=f"C{j}", lw=1, label=label)
+            band = (bands or {}).get((i, kind))
+            if band is not None:
+                ax.fill_between(band.t, band.lower * 1e3, band.upper * 1e3, color=f"C{j}", alpha=0.25, lw=0,
+                                label=f"{round(100 * ensemble.LEVEL)} % band ({band.x.shape[0]} restarts)")
         travel_mm = 1e3 * ev0.metrics["travel_m"]
         ax.set_ylim(-1.6 * travel_mm, 0.2 * travel_mm)
         ax.set_title(f"set {i}: test {SETS[i][2]}", fontsize=9)

@@ -2,8 +2,8 @@
 
 ``model.json`` holds everything needed to rebuild the model and to read it without torch:
 its kind and hyper-parameters, the normalisation of the training data, the training input
-range, the setups it saw (file, φ, V^T), the training configuration and outcome, and the
-package versions. Infinite values (e.g. no contact loss) are written as ``null``. Every
+range, the setups it saw (file, SHA-256, fidelity, φ, V^T), the training configuration and
+outcome, the model card (:mod:`deapull.surrogate.card`) and the package versions. Infinite values (e.g. no contact loss) are written as ``null``. Every
 file is written atomically (:func:`deapull.io.atomic_write`).
 
 A model holds no φ: the coin is an argument of every step. Folders saved while φ was
@@ -23,6 +23,7 @@ import torch
 
 from deapull.errors import InputError
 from deapull.io import atomic_write, write_csv, write_text
+from deapull.surrogate import card
 from deapull.surrogate.models import InputRange, Normalisation, Surrogate, build
 
 FORMAT = "deapull-surrogate/1"
@@ -35,7 +36,8 @@ class ModelFileError(InputError):
     """A model folder that cannot be read back; the message names the file."""
 
 
-def save(model: Surrogate, out_dir: str | Path, training: dict | None = None, history: list | None = None) -> Path:
+def save(model: Surrogate, out_dir: str | Path, training: dict | None = None, history: list | None = None,
+         test: dict | None = None) -> Path:
     """Write ``model`` to ``out_dir`` (created); returns the folder.
 
     Parameters
@@ -46,12 +48,14 @@ def save(model: Surrogate, out_dir: str | Path, training: dict | None = None, hi
         What :meth:`surrogate.train.TrainResult.summary` returns (setups, configuration...).
     history : list of dict, optional
         Per-epoch losses, written as CSV.
+    test : dict, optional
+        The metrics of a test rollout (:func:`surrogate.evaluate.evaluate`), kept in the card.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meta = {"format": FORMAT, "kind": model.kind, "hyper_parameters": model.hparams,
             "normalisation": model.norm.to_dict(), "input_range": model.input_range.to_dict(),
-            "training": training or {}, "versions": {"python": platform.python_version(),
+            "training": training or {}, "card": card.build(training, test) if training else {}, "versions": {"python": platform.python_version(),
                                                      "torch": torch.__version__, "numpy": np.__version__}}
     atomic_write(out / STATE, lambda p: torch.save(model.state_dict(), p))
     write_text(out / META, json.dumps(_finite(meta), indent=2) + "\n")

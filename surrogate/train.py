@@ -25,6 +25,7 @@ import time
 import warnings
 from dataclasses import asdict, dataclass, field
 
+import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -135,6 +136,12 @@ class TrainResult:
     restarts : list of dict
         One per restart, in seed order: ``seed``, ``best_epoch``, ``epochs_run``,
         ``best_val_loss``, ``val_x_error_pct``, ``val_diverged``, ``wall_time_s``, ``kept``.
+    members : list of Surrogate
+        Every restart's model, in seed order (the ensemble of :mod:`surrogate.ensemble`).
+    val_sets : list of SetupData
+        The validation runs (the ensemble's band is calibrated on them).
+    phis : dict
+        The φ each training and validation run was trained with, by run name.
     """
 
     model: Surrogate
@@ -147,6 +154,9 @@ class TrainResult:
     seed: int = 0
     val_x_error_pct: float = math.nan
     restarts: list = field(default_factory=list)
+    members: list = field(default_factory=list)
+    val_sets: list = field(default_factory=list)
+    phis: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         return {"config": asdict(self.config), "setups": self.setups, "best_epoch": self.best_epoch,
@@ -164,9 +174,11 @@ def setup_record(data: SetupData, role: str, phi: Phi) -> dict:
     """A setup's identity and the φ it was trained with, as saved with a model (V^T: None
     where the kind does not use it)."""
     vt = phi.value("v_threshold_V")
-    return {"role": role, "file": str(data.path), "steps": data.n_steps, "coin_mass_kg": data.mass_kg,
+    return {"role": role, "file": str(data.path), "sha256": data.sha256, "fidelity": data.fidelity,
+            "fidelity_id": data.fidelity_id, "steps": data.n_steps, "coin_mass_kg": data.mass_kg,
             "mu_b": data.mu_b, "mu_t": data.mu_t, "gravity_m_s2": data.gravity_m_s2, "travel_m": data.travel_m,
-            "v_threshold_V": vt if math.isfinite(vt) else None}
+            "v_min_V": float(data.V.min()), "v_max_V": float(data.V.max()),
+            "v_falls": bool(np.any(np.diff(data.V) < 0)), "v_threshold_V": vt if math.isfinite(vt) else None}
 
 
 def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData | list[SetupData],
@@ -216,7 +228,7 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData |
              config.kind, ",".join(d.name for d in train_sets), len(train_tr), ",".join(v.name for v in val_sets),
              config.epochs, device, config.restarts)
     seeds = range(config.seed, config.seed + config.restarts)
-    best, records = None, []
+    best, records, members = None, [], []
     for seed in tqdm(seeds, desc=f"restarts {config.kind}", unit="seed", leave=False,
                      disable=None if config.restarts > 1 else True):
         run = _fit(config, seed, (norm, input_range, hparams), train_tr, val_tr, device)
@@ -225,6 +237,7 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData |
                   "best_val_loss": run.best_val_loss, "val_x_error_pct": run.val_x_error_pct,
                   "val_diverged": diverged, "wall_time_s": run.wall_time_s, "kept": False}
         records.append(record)
+        members.append(run.model)
         log.info("%s seed %d: val loss %.4g (epoch %d of %d), validation rollout x error %.4g %% of travel%s",
                  config.kind, seed, run.best_val_loss, run.best_epoch, len(run.history), run.val_x_error_pct,
                  " (diverged)" if diverged else "")
@@ -235,7 +248,8 @@ def train(config: TrainConfig, train_sets: list[SetupData], val_set: SetupData |
     result = TrainResult(model=best.model, config=config, setups=setups, history=best.history,
                          best_epoch=best.best_epoch, best_val_loss=best.best_val_loss,
                          wall_time_s=time.perf_counter() - start, seed=best.seed,
-                         val_x_error_pct=best.val_x_error_pct, restarts=records)
+                         val_x_error_pct=best.val_x_error_pct, restarts=records, members=members,
+                         val_sets=val_sets, phis=phis)
     log.info("%s: kept seed %d of %d restart(s): validation rollout x error %.4g %% of travel, val loss %.4g "
              "at epoch %d of %d, %.1f s in all", config.kind, result.seed, config.restarts, result.val_x_error_pct,
              result.best_val_loss, result.best_epoch, len(result.history), result.wall_time_s)

@@ -132,15 +132,20 @@ def cmd_evaluate(args) -> int:
     from deapull.surrogate import store  # lazy: torch
     from deapull.surrogate.data import load_setup  # lazy: torch
     from deapull.surrogate.evaluate import evaluate, format_table  # lazy: torch
+    from deapull.surrogate import card  # lazy: torch
     model, meta = store.load(args.model)
     data = load_setup(Path(args.data) / f"{args.test}.nc")
+    mismatches = card.check(meta.get("card", {}), data)
+    for message in mismatches:
+        log.warning("%s", message)
     phi = model.phi_of(data)        # the test coin
     ev = evaluate(model, data, engine=args.engine, strict=args.strict, phi=phi)
     print(format_table([ev.metrics]))
     out = Path(args.out) if args.out else Path(args.model) / f"evaluate_{args.test}.json"
     write_json(out, {**ev.metrics, "model_dir": str(args.model), "data_file": str(data.path),
                      "phi": {f: phi.value(f) for f in model.phi_fields},
-                     "trained_on": meta.get("training", {}).get("setups", {})}, indent=2)
+                     "trained_on": meta.get("training", {}).get("setups", {}), "card_warnings": mismatches},
+               indent=2)
     print(f"wrote {out}")
     return 0
 
@@ -154,7 +159,8 @@ def cmd_experiments(args) -> int:
     except ValueError:
         raise InputError(f"--sets {args.sets!r}: expected comma-separated set numbers 1..6") from None
     restarts = {k: restarts_for(args, k) for k in kinds}
-    rows = experiments.run(args.data, args.out, _config(args, "f"), kinds=kinds, sets=sets, restarts=restarts)
+    rows = experiments.run(args.data, args.out, _config(args, "f"), kinds=kinds, sets=sets, restarts=restarts,
+                           repeats=args.repeats)
     print(experiments.summary_table(rows, kinds))
     print()
     print(experiments.per_set_table(rows, kinds))
@@ -252,6 +258,8 @@ def register(sub) -> None:
                    f"identifies, {','.join(k for k, c in KINDS.items() if c.training_coins == 1)}; "
                    f"also {','.join(k for k, c in KINDS.items() if c.training_coins > 1) or 'none'})")
     p.add_argument("--sets", default="1,2,3,4,5,6", help="which sets to run (default 1,2,3,4,5,6)")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="independent repeats of every model (seeds --seed + r x restarts on): mean and spread (3)")
     _training_args(p, 1000)
     p.set_defaults(func=cmd_experiments)
 

@@ -22,7 +22,7 @@ from deapull.surrogate.phi import Phi
 log = logging.getLogger(__name__)
 
 
-def regularised_slip(v: torch.Tensor, eps) -> torch.Tensor:
+def regularised_slip(v: torch.Tensor, eps: torch.Tensor) -> torch.Tensor:
     """The FEM's rate-regularised Coulomb factor s/√(s² + ε²) ∈ (-1, 1) of a slip rate s
     (ε a float, or a tensor of one per row)."""
     return v / torch.sqrt(v * v + eps * eps)
@@ -41,7 +41,8 @@ def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps, iterations: int = 40):
     when the tip's pull at u' = 0 plus the coin's momentum stays inside the ground's cone;
     otherwise the sign of u' is known and a bracketed Newton solve finds it. The solve runs
     without gradients, then one Newton correction with them gives the gradients of the
-    exact root (implicit differentiation) with respect to every input.
+    exact root (implicit differentiation) with respect to every input. The arithmetic is
+    :func:`coin_step`, which TorchScript compiles (:mod:`deapull.surrogate.export`).
 
     Parameters
     ----------
@@ -61,18 +62,31 @@ def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps, iterations: int = 40):
     (u_next, T) : tuple of torch.Tensor
         The coin velocity after the step and the tip's force on the coin along x (N).
     """
+    like = torch.as_tensor(u)
+    as_tensor = (lambda v: v if isinstance(v, torch.Tensor) else torch.tensor(v, dtype=like.dtype))
+    return coin_step(like, as_tensor(w), as_tensor(cap_t), as_tensor(cap_b), as_tensor(mass_kg), as_tensor(dt),
+                     as_tensor(eps), int(iterations))
+
+
+def _coin_residual(v: torch.Tensor, u: torch.Tensor, w: torch.Tensor, c: torch.Tensor, cap_t: torch.Tensor,
+                   sign_cap_b: torch.Tensor, eps: torch.Tensor) -> torch.Tensor:
+    return c * (v - u) - cap_t * regularised_slip(w - v, eps) + sign_cap_b
+
+
+def _coin_slope(v: torch.Tensor, w: torch.Tensor, c: torch.Tensor, cap_t: torch.Tensor,
+                eps: torch.Tensor) -> torch.Tensor:
+    return c + cap_t * eps * eps / ((w - v) ** 2 + eps * eps) ** 1.5
+
+
+def coin_step(u: torch.Tensor, w: torch.Tensor, cap_t: torch.Tensor, cap_b: torch.Tensor, mass_kg: torch.Tensor,
+              dt: torch.Tensor, eps: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`tip_coin_step` on tensors (TorchScript compiles it)."""
     c = mass_kg / dt
     tip_at_rest_coin = cap_t * regularised_slip(w, eps)
     ground_reaction = tip_at_rest_coin + c * u
     stuck = ground_reaction.abs() <= cap_b
     sign = torch.where(ground_reaction > 0, torch.ones_like(u), -torch.ones_like(u))
-
-    def residual(v):
-        return c * (v - u) - cap_t * regularised_slip(w - v, eps) + sign * cap_b
-
-    def slope(v):
-        return c + cap_t * eps * eps / ((w - v) ** 2 + eps * eps) ** 1.5
-
+    sign_cap_b = sign * cap_b
     with torch.no_grad():
         reach = (cap_t + cap_b) / c
         zero = torch.zeros_like(ground_reaction)
@@ -84,16 +98,17 @@ def tip_coin_step(u, w, cap_t, cap_b, mass_kg, dt, eps, iterations: int = 40):
         v = torch.minimum(torch.maximum(w - eps * ratio / torch.sqrt(1 - ratio * ratio), lo), hi)
         change = hi - lo
         for _ in range(iterations):
-            r = residual(v)
+            r = _coin_residual(v, u, w, c, cap_t, sign_cap_b, eps)
             lo, hi = torch.where(r < 0, v, lo), torch.where(r >= 0, v, hi)
-            step = r / slope(v)
+            step = r / _coin_slope(v, w, c, cap_t, eps)
             # bisect where Newton leaves the bracket or does not halve its last change
             bisect = (v - step < lo) | (v - step > hi) | (2 * step.abs() > change.abs())
-            v, previous = torch.where(bisect, 0.5 * (lo + hi), v - step), v
+            previous = v
+            v = torch.where(bisect, 0.5 * (lo + hi), v - step)
             change = v - previous
             if bool(torch.all(change.abs() <= 1e-13 * (v.abs() + eps))):
                 break
-    v = v - residual(v) / slope(v).detach()
+    v = v - _coin_residual(v, u, w, c, cap_t, sign_cap_b, eps) / _coin_slope(v, w, c, cap_t, eps).detach()
     u_next = torch.where(stuck, torch.zeros_like(v), v)
     force = torch.where(stuck, tip_at_rest_coin + 0 * v, cap_t * regularised_slip(w - u_next, eps))
     return u_next, force

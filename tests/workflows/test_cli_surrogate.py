@@ -104,7 +104,7 @@ def test_restarts_per_model_kind(sweep_dir, tmp_path):
         _run("experiments", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "e"), "--restarts", "lstmm=2")
     out = tmp_path / "exp"
     assert _run("experiments", "--data", str(sweep_dir), "--out", str(out), "--epochs", "2", "--sets", "1",
-                "--models", "f-coulomb,nn", "--restarts", "f-coulomb=2") == 0
+                "--models", "f-coulomb,nn", "--restarts", "f-coulomb=2", "--repeats", "1") == 0
     with open(out / "experiments.csv") as fh:
         restarts = {r["model"]: r["restarts"] for r in csv.DictReader(fh)}
     assert restarts == {"f-coulomb": "2", "nn": "1"}
@@ -113,7 +113,7 @@ def test_restarts_per_model_kind(sweep_dir, tmp_path):
 def test_experiments_write_table_csv_and_plots(sweep_dir, tmp_path, capsys):
     out = tmp_path / "exp"
     assert _run("experiments", "--data", str(sweep_dir), "--out", str(out), "--epochs", "2", "--sets", "1,2",
-                "--models", "f,f-coulomb,nn", "--restarts", "2") == 0
+                "--models", "f,f-coulomb,nn", "--restarts", "2", "--repeats", "1") == 0
     with open(out / "experiments.csv") as fh:
         rows = list(csv.DictReader(fh))
     json_rows = json.loads((out / "experiments.json").read_text())["rows"]

@@ -25,22 +25,14 @@ from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
 TABLE_PENETRATION_GOAL_UM = 1.0
 
 def datasets_fidelity(data: Path, setup: str = "C3") -> str | None:
-    """The fidelity of the scene that ``data``/<setup>.nc was made at, from its ``scene_toml``:
+    """The fidelity of the scene that ``data``/<setup>.nc was made at (:func:`deapull.scene.fidelity_of_resolved`):
     a ``[fidelities.NAME]`` of the scene, "" for the file as written, None when it is none of
     them (other ``--set`` overrides) or the dataset is absent."""
-    import tomllib
     path = Path(data) / f"{setup}.nc"
     if not path.is_file():
         return None
     text = str(dataset.read(path, ("t",)).attrs.get("scene_toml", ""))
-    try:
-        made = scenes.from_dict(tomllib.loads(text)).to_dict()
-    except (tomllib.TOMLDecodeError, scenes.SceneError):
-        return None
-    for name in ("", *scenes.fidelities_of(SCENE)):
-        if scenes.load(SCENE, setup=setup, overrides=scenes.fidelity_overrides(SCENE, name)).to_dict() == made:
-            return name
-    return None
+    return scenes.fidelity_of_resolved(text, SCENE)[0]
 
 
 def mesh_patch_text(m) -> str:
