@@ -713,8 +713,8 @@ def from_resolved_toml(text: str) -> Scene:
 DISCRETISATION = ("mesh", "solver", "contact", "time")
 
 
-def fidelity_of_resolved(text: str, scene_file: str | Path | None = None) -> tuple[str | None, str]:
-    """The fidelity a dataset was made at, from its ``scene_toml`` attribute.
+def fidelity_of_resolved(text: str, setup: str | None, scene_file: str | Path | None = None) -> tuple[str | None, str]:
+    """The fidelity a dataset of ``setup`` was made at, from its ``scene_toml`` attribute.
 
     Returns
     -------
@@ -737,7 +737,7 @@ def fidelity_of_resolved(text: str, scene_file: str | Path | None = None) -> tup
     try:
         names = ("", *fidelities_of(source))
         for name in names:
-            if load(source, setup=made.setup, overrides=fidelity_overrides(source, name)).to_dict() == made_dict:
+            if load(source, setup=setup or None, overrides=fidelity_overrides(source, name)).to_dict() == made_dict:
                 return name, fingerprint
     except InputError:
         pass

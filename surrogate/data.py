@@ -179,7 +179,8 @@ def load_setup(path: str | Path) -> SetupData:
         raise DatasetError(f"{run.path}: variable 'dt': non-positive time step {dt[bad]:g} s at step {bad}")
     optional = {field: run.number(name, positive=False, default=float("nan"))
                 for name, field in OPTIONAL_ATTRS.items()}
-    fidelity, fidelity_id = scenes.fidelity_of_resolved(str(run.attrs.get("scene_toml", "")))
+    fidelity, fidelity_id = scenes.fidelity_of_resolved(str(run.attrs.get("scene_toml", "")),
+                                                        str(run.attrs.get("setup", "")))
     return SetupData(name=run.path.stem, path=run.path, **columns, mass_kg=run.number("coin_mass_kg"),
                      mu_b=run.number("coin_mu_b"), gravity_m_s2=run.number("gravity_m_s2"),
                      wall_time_s=float(run.attrs.get("wall_time_total_s", float("nan"))), **optional,

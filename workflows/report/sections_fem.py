@@ -32,7 +32,7 @@ def datasets_fidelity(data: Path, setup: str = "C3") -> str | None:
     if not path.is_file():
         return None
     text = str(dataset.read(path, ("t",)).attrs.get("scene_toml", ""))
-    return scenes.fidelity_of_resolved(text, SCENE)[0]
+    return scenes.fidelity_of_resolved(text, setup, SCENE)[0]
 
 
 def mesh_patch_text(m) -> str:
