@@ -340,3 +340,52 @@ def plot(rows: list[dict], kinds, design: Design, path: Path) -> Path | None:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+#: the friction pairs of the design (setups that share μ_b and μ_t and differ in the coin's density)
+PAIRS = (("C1", "C2"), ("C3", "C4"), ("C5", "C6"), ("C7", "C8"))
+
+
+def pair_designs(coins=tuple(c for pair in PAIRS for c in pair)) -> list[tuple[tuple, Design]]:
+    """Leave one friction pair out at a time: train on the ramps of the six other coins, early-stop
+    on the next pair's first coin (it is not trained on), test on the held-out pair's ramps."""
+    out = []
+    for j, held in enumerate(PAIRS):
+        val = PAIRS[(j + 1) % len(PAIRS)][0]
+        train = tuple(c for c in coins if c not in held and c != val)
+        out.append((held, Design(train_coins=train, val_coins=(val,), test_coins=(), train_protocols=("ramp",),
+                                 test_protocols=(), ramp_coins=held)))
+    return out
+
+
+def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=("f-coulomb",),
+              restarts: dict | None = None) -> list[dict]:
+    """:func:`run` on each design of :func:`pair_designs` (into ``<out>/pair_<C>_<C>/``); writes
+    ``pairs.csv`` and ``pairs.md`` (x error of each held-out ramp, % of travel, per kind) and
+    returns the rows (with ``pair``)."""
+    out = Path(out_dir)
+    rows = []
+    for held, design in pair_designs():
+        name = "pair_" + "_".join(held)
+        for row in run(data_dir, out / name, base, excitation_dir=data_dir, kinds=kinds, design=design,
+                       restarts=restarts):
+            rows.append({**{k: row.get(k) for k in CSV_COLUMNS}, "pair": "/".join(held)})
+    write_csv(out / "pairs.csv", rows, ("pair", *CSV_COLUMNS))
+    write_text(out / "pairs.md", pairs_table(rows, kinds) + "\n")
+    return rows
+
+
+def pairs_table(rows: list[dict], kinds) -> str:
+    """One line per held-out ramp: its pair, travel and each kind's x error (% of travel), then the
+    largest per kind."""
+    runs = list(dict.fromkeys((r["pair"], r["run"]) for r in rows))
+    by = {(r["model"], r["run"]): r for r in rows}
+    table = [{"pair": p, "run": n, "travel": 1e3 * by[(kinds[0], n)]["travel_m"],
+              **{k: "div." if by[(k, n)]["diverged"] else f"{by[(k, n)]['x_error_pct_travel']:.2f}" for k in kinds}}
+             for p, n in runs]
+    worst = {k: max((math.inf if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"]) for _, n in runs)
+             for k in kinds}
+    return (markdown_table(table, [("held-out pair", "pair", "s"), ("ramp", "run", "s"), ("travel mm", "travel", ".3f")]
+                           + [(f"{KINDS[k].label} x error [%]", k, "s") for k in kinds])
+            + "\n\n" + "\n".join(f"* {KINDS[k].label}: largest x error on a held-out ramp {worst[k]:.2f} % of travel"
+                                 for k in kinds))

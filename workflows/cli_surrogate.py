@@ -171,6 +171,13 @@ def cmd_experiments(args) -> int:
 def cmd_experiments_protocols(args) -> int:
     from deapull.surrogate import experiments, protocol_experiments as pe  # lazy: torch
     from deapull.surrogate.data import parse_setups  # lazy: torch
+    if args.held_out_pairs:
+        kinds = parse_setups(args.models) if args.models else ["f-coulomb"]
+        rows = pe.run_pairs(args.data, args.out, _config(args, "f"), kinds=kinds,
+                            restarts={k: restarts_for(args, k) for k in kinds})
+        print(pe.pairs_table(rows, kinds))
+        print(f"wrote {args.out}/pairs.csv, pairs.md")
+        return 0
     kinds = parse_setups(args.models) if args.models else list(pe.DEFAULT_KINDS)
     design = pe.Design(train_coins=tuple(parse_setups(args.train_coins)), val_coins=tuple(parse_setups(args.val_coins)),
                        test_coins=tuple(parse_setups(args.test_coins)) if args.test_coins else (),
@@ -270,6 +277,9 @@ def register(sub) -> None:
                    help="folder with <setup>_<protocol>.nc (deapull sweep --protocols excitation; default <data>/excitation)")
     p.add_argument("--out", required=True, help="output folder (resumes: trained models and evaluations are reused)")
     p.add_argument("--models", default="", help="comma-separated kinds (default f-memory,f-coulomb,f,nn,lstm)")
+    p.add_argument("--held-out-pairs", action="store_true",
+                   help="leave one friction pair out at a time (C1/C2 .. C7/C8), train on the other coins' ramps "
+                   "(--models, default f-coulomb; the coin and protocol flags are not used)")
     p.add_argument("--train-coins", default="C1", help="training coins (C1)")
     p.add_argument("--val-coins", default="C3", help="validation coins, early stopping (C3)")
     p.add_argument("--test-coins", default="C5,C7", help="held-out coins tested on every protocol (C5,C7)")

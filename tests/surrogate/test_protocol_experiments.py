@@ -5,6 +5,7 @@ Excitation runs are stand-ins here (copies of the committed test sweep's ramps u
 names ``<coin>_<protocol>.nc``): the plumbing is under test, not the physics."""
 from __future__ import annotations
 
+import json
 import shutil
 
 import pytest
@@ -100,3 +101,19 @@ def test_the_command_prints_the_held_out_table_beside_the_ramp_table(folders, tm
     assert kept["val_x_error_pct"] == min(r["val_x_error_pct"] for r in restarts)
     assert "the paper's six sets" in printed and "1 (C1/C2/C3)" in printed
     assert "Held-out protocols and coins" in printed and "triangle" in printed
+
+
+def test_held_out_pairs_never_train_or_validate_on_the_pair_they_test(sweep_dir, tmp_path):
+    from deapull.surrogate.protocol_experiments import PAIRS, pair_designs, run_pairs
+    from deapull.surrogate.train import TrainConfig
+    designs = pair_designs()
+    assert [held for held, _ in designs] == list(PAIRS)
+    for held, d in designs:
+        seen = set(d.train_coins) | set(d.val_coins)
+        assert not seen & set(held) and len(d.train_coins) == 5 and len(seen) == 6
+    rows = run_pairs(sweep_dir, tmp_path, TrainConfig(kind="f-coulomb", epochs=2), kinds=("f-coulomb",))
+    assert [(r["pair"], r["run"]) for r in rows] == [("/".join(p), c) for p in PAIRS for c in p]
+    for r in rows:   # each model's card names its training coins: never the pair it is tested on
+        meta = json.loads((tmp_path / ("pair_" + r["pair"].replace("/", "_")) / "f-coulomb" / "model.json").read_text())
+        assert r["run"] not in meta["card"]["training_coins"] + meta["card"]["validation_coins"]
+    assert "largest x error on a held-out ramp" in (tmp_path / "pairs.md").read_text()
