@@ -140,10 +140,14 @@ class BiasKalman:
         """Standard deviation of the position estimate (m)."""
         return math.sqrt(max(self.P[0, 0], 0.0))
 
-    def reset(self, x_obs: float) -> float:
-        """Start from the first observation, g = 0 with its prior."""
-        self.s = np.array([float(x_obs), 0.0])
-        self.P = np.diag([self.r, self.p_g])
+    def reset(self, x_obs: float, gain: float = 0.0, gain_var: float | None = None,
+              x_var: float | None = None) -> float:
+        """Start from the position ``x_obs`` (the first observation; variance σ², or ``x_var``) and
+        g = ``gain`` with variance ``gain_var`` (default: 0 with the prior's; what an earlier episode
+        learnt, :class:`~deapull.control.mpc_policy.MPCPolicy`'s ``learn``)."""
+        self.s = np.array([float(x_obs), float(gain)])
+        self.P = np.diag([self.r if x_var is None else float(x_var),
+                          self.p_g if gain_var is None else max(float(gain_var), self.q_g)])
         self.innovations.clear()
         return self.x
 

@@ -73,6 +73,19 @@ moves (measured on surrogate:C1 at 0.4 V per step: 3 of 10 episodes stood still 
 
 **Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
 moves the setpoint (push, push, pull back) re-plans at once.
+
+**Learning across episodes** (``learn``, iterative learning control). The plant is
+deterministic and a repeated task starts from the same state, so what one episode found
+carries to the next of the same task (target, tolerance, noise, step and rate): an episode
+that ends with its estimate inside the tolerance of a single target, at most that far
+uncertain, leaves the voltage V_f it ended at and the bias filter's g with its variance.
+The next episode starts the filter from them and plays a rate schedule instead of planning
+its way there: the full rate up to V_f − ``learn_margin_V``, ``creep_V`` per step from there
+to V_f, then the hold. The hold's estimate starts where the learnt episode ended, with that
+estimate's variance plus (``learn_path_share`` × tolerance)² for the other path (the fast
+schedule is not the path that episode took); the observations refine it, and the
+re-centring steps only where they move it confidently off the target. Each later episode learns again from
+where it ended, so a correction made in the hold carries on.
 """
 
 from __future__ import annotations
@@ -205,6 +218,11 @@ class MPCConfig:
         The bias filter's innovation check over this many steps (0: off;
         :class:`~deapull.control.filters.BiasKalman`): an estimate that lags the observations
         by more than the filter's own std allows is let go to follow them.
+    learn, learn_margin_V, learn_path_share :
+        Learning across the episodes of a repeated task (module docstring): the next episode
+        starts from the previous one's final voltage V_f, position and g, at the full rate up to
+        ``learn_margin_V`` below V_f, at ``creep_V`` per step from there; the other path adds
+        ``learn_path_share`` × tolerance to the std of the position it starts the hold from.
     """
 
     horizon: int = 20
@@ -237,6 +255,9 @@ class MPCConfig:
     innovation_window: int = 0
     unstall: bool = True
     reach_gate: bool = True
+    learn: bool = True
+    learn_margin_V: float = 5.0
+    learn_path_share: float = 0.5
 
     def __post_init__(self):
         if self.filter not in FILTERS:
@@ -253,7 +274,8 @@ class MPCConfig:
         if not 0 <= self.hold_band <= 1:
             raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
         for name in ("hold_stds", "recentre_stds", "recentre_band", "creep_V", "approach_m", "max_rate_V",
-                     "standoff_stds", "max_wait", "crlb_every", "bias_process_fraction", "innovation_window"):
+                     "standoff_stds", "max_wait", "crlb_every", "bias_process_fraction", "innovation_window",
+                     "learn_margin_V", "learn_path_share"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InputError(f"MPC {name} = {value!r}: must be a finite number >= 0")
@@ -297,9 +319,34 @@ class MPCPolicy(Policy):
         self.fixed_phi = None if phi is None else model.check_phi(phi).to(dtype=torch.float64)
         self.inference = None
         self.spec = None
+        self.previous = None
+        #: what earlier episodes of each task ended with (:meth:`_learn`): task -> {V_f, gain, gain_var}
+        self.learned: dict = {}
+        self.schedule = None
+
+    @staticmethod
+    def _task_key(spec) -> tuple:
+        return (float(spec.target_m), float(spec.tolerance_m), float(spec.noise_std_m), float(spec.dt_s),
+                float(spec.dv_max_V))
+
+    def _learn(self) -> None:
+        """Keep what the episode that just ended found, if it ended inside the tolerance of its one
+        target (by its own estimate, at most a tolerance uncertain): its final voltage and g."""
+        if not self.config.learn or self.spec is None or self.previous is None or self.bias is None:
+            return
+        x, _, V = self.previous
+        if self.target_m != float(self.spec.target_m) or self.moved_target:
+            return
+        if abs(x - self.target_m) <= self.tolerance_m and self.estimate_std_m <= self.tolerance_m:
+            self.learned[self._task_key(self.spec)] = {"V_f": V, "gain": self.bias.gain,
+                                                       "gain_var": float(self.bias.P[1, 1]), "x_f": x,
+                                                       "x_var": float(self.bias.P[0, 0])}
 
     def reset(self, spec) -> None:
         cfg = self.config
+        self._learn()
+        self.moved_target = False
+        self.schedule = self.learned.get(self._task_key(spec)) if cfg.learn and cfg.offset_free else None
         self.spec, self.target_m, self.tolerance_m = spec, float(spec.target_m), float(spec.tolerance_m)
         self.dt, self.dv_max_V, self.v_max_V = float(spec.dt_s), float(spec.dv_max_V), float(spec.v_max_V)
         if cfg.max_rate_V > 0:              # the plan's ΔV_max: the model sees the rate the plant gets
@@ -458,6 +505,8 @@ class MPCPolicy(Policy):
         if self.previous is None:
             self.memory = None
             if self.bias is not None:
+                if self.schedule is not None:
+                    return self.bias.reset(x, self.schedule["gain"], self.schedule["gain_var"]), 0.0
                 return self.bias.reset(x), 0.0
             return (x if self.kalman is None else self.kalman.reset(x)), 0.0
         x0, u0, V0 = self.previous
@@ -486,9 +535,11 @@ class MPCPolicy(Policy):
     def act(self, obs, info) -> float:
         cfg = self.config
         x, V = self.spec.position_of(obs), float(info["V_V"])
+        x_obs = x
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
             self.target_m, self.plan, self.holding = target, None, False
+            self.moved_target, self.schedule = True, None
             self.side = math.copysign(1.0, (self.previous[0] if self.previous else x) - target)
             self.waited = 0
         if cfg.infer:
@@ -508,6 +559,20 @@ class MPCPolicy(Policy):
         # hold (hysteresis): start once the estimate is inside the band, and go on while it stays
         # within the band plus its own uncertainty; at constant V static friction holds
         # the coin and the estimate's std shrinks as the observations average
+        if self.schedule is not None:       # a learnt episode: the rate schedule to V_f, then the hold
+            gap = self.schedule["V_f"] - V
+            if gap > 1e-9:
+                rate = self.dv_max_V if gap > cfg.learn_margin_V else min(cfg.creep_V, self.dv_max_V)
+                self.solve_ms.append(1e3 * (time.perf_counter() - start))
+                return min(rate, gap)
+            # the hold starts where the learnt episode ended, x_f, with its variance and the path's
+            # (half a tolerance: the schedule is not the path that episode took), not from the
+            # estimate carried through the fast schedule (it rests on g over a path the filter has
+            # not seen); held, the observations refine it
+            x_var = self.schedule["x_var"] + (self.config.learn_path_share * self.tolerance_m) ** 2
+            x = self.bias.reset(self.schedule["x_f"], self.bias.gain, float(self.bias.P[1, 1]), x_var)
+            self.schedule, self.holding = None, True
+            self.previous = (x, 0.0, V)
         error = abs(x - self.target_m)
         aim = self._aim(xi0, x, V)
         if cfg.hold_band > 0:

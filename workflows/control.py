@@ -117,6 +117,7 @@ class ControlConfig:
     mpc_innovation_window: int = 0
     mpc_reach_gate: bool = True
     mpc_recentre: float = MPCConfig.recentre_stds
+    mpc_learn: bool = MPCConfig.learn
     phi_prior: str = "none"
     infer_optimizer: str = "lm"
     infer_engine: str = "auto"
@@ -414,6 +415,7 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
                      innovation_window=0 if plain else config.mpc_innovation_window,
                      reach_gate=config.mpc_reach_gate,
                      recentre_stds=0.0 if plain else config.mpc_recentre,
+                     learn=config.mpc_learn and not plain,
                      inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior,
                                                engine=config.infer_engine,
                                                fields=config.infer_fields),

@@ -83,7 +83,8 @@ def _save(fig, path: Path) -> None:
 
 
 def summary_rows(rows: list[dict], tolerance_m: float) -> list[dict]:
-    """One row per (policy, plant, noise): counts, medians and the paper's numbers, and the
+    """One row per (policy, plant, noise): counts, medians and the paper's numbers, episode 1 apart from
+    the repeats (what a learning policy carries over shows there), and the
     information bound: the episodes that a controller can expect to settle at most in as many
     iterations as each took, knowing the plant's travel only from the observations
     (:func:`~deapull.control.filters.settle_bound`, docs/control.md "What noise allows")."""
@@ -97,7 +98,15 @@ def summary_rows(rows: list[dict], tolerance_m: float) -> list[dict]:
         paper_its, paper_ms = CONTROL[policy.split("+")[0]]
         overshoot = [r["overshoot_m"] for r in group if r.get("overshoot_m") is not None]
         beyond = all(str(r.get("status", "")).startswith("unreachable") for r in group)
+        first = [r for r in group if r.get("episode", 0) == 0]
+        later = [r for r in group if r.get("episode", 0) > 0]
+        later_its = [r["iterations_to_target"] for r in later if r["settled"]]
         out.append({"policy": policy, "plant": plant, "noise": noise, "task": task,
+                    "first": "–" if not first or beyond else
+                    f"{'settled' if first[0]['settled'] else 'reached' if first[0]['reached'] else 'not reached'}"
+                    f"{' in ' + str(first[0]['iterations_to_target']) if first[0]['reached'] else ''}",
+                    "later": "–" if not later or beyond else
+                    f"{len(later_its)}/{len(later)}" + (f", {np.median(later_its):.0f}" if later_its else ""),
                     "reached": "unreachable" if beyond else f"{len(its)}/{len(group)}",
                     "settled": f"{sum(r['settled'] for r in group)}/{len(group)}",
                     "its": "–" if not its else f"{q[1]:.0f} [{q[0]:.0f}–{q[2]:.0f}]",
@@ -117,6 +126,7 @@ def summary_table(rows: list[dict], tolerance_m: float) -> str:
         ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
         ("setpoints (mm)", "task", "s"), ("reached", "reached", "s"), ("settled", "settled", "s"),
         ("iterations to target, median [25–75 %]", "its", "s"),
+        ("episode 1", "first", "s"), ("episodes 2–N settled, median iterations", "later", "s"),
         ("information bound: settled at most in those iterations", "bound", "s"),
         ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("largest overshoot (mm)", "overshoot_mm", ".3g"), ("ms / iteration", "ms", ".3g"),
         ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),

@@ -4,6 +4,7 @@ grid, box QPs by their KKT conditions, and its derivatives by finite differences
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -566,3 +567,32 @@ def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(
     dV = policy.act(obs, info)
     assert policy.holding == (expected == "hold")
     assert dV == (0.0 if expected == "hold" else pytest.approx(config.creep_V))
+
+
+def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_next_episode_is_faster(coulomb, sweep):
+    """``learn`` (iterative learning control): episode 1 at σ = 0.1 mm with the stand-off waits for its
+    estimate to average down; it ends settled and leaves its final voltage and g; episode 2 plays the
+    rate schedule to that voltage (no plan, no stand-off) and holds: it reaches in fewer iterations
+    than episode 1, stays inside, and starts its filter from g. Another noise is another task. Broken
+    once: the schedule left out (episode 2 took as long as episode 1)."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000, noise_std_m=1e-4)
+    config = MPCConfig(horizon=10, iterations=4, infer=False, standoff_stds=2.0, max_wait=800, approach_m=1e-4)
+    policy = MPCPolicy(coulomb, config, phi=plant.truth)
+    first = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50).row
+    gain, V_end = policy.bias.gain, policy.previous[2]
+    assert policy.learned == {}                  # learnt when the next episode starts
+    second = run_episode(env, policy, seed=1, step_limit=1800, hold_steps=50).row
+    (learned,) = policy.learned.values()
+    assert learned["gain"] == gain and learned["V_f"] == V_end > 100
+    assert first["settled"] and second["settled"]
+    assert second["iterations_to_target"] < 0.5 * first["iterations_to_target"]
+    assert second["overshoot_m"] < 1e-5
+    other = MPCPolicy(coulomb, replace(config, learn=False), phi=plant.truth)
+    run_episode(env, other, seed=0, step_limit=1800, hold_steps=50)
+    again = run_episode(env, other, seed=1, step_limit=1800, hold_steps=50).row
+    assert again["iterations_to_target"] > 0.5 * first["iterations_to_target"] and other.learned == {}
