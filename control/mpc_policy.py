@@ -535,7 +535,6 @@ class MPCPolicy(Policy):
     def act(self, obs, info) -> float:
         cfg = self.config
         x, V = self.spec.position_of(obs), float(info["V_V"])
-        x_obs = x
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
             self.target_m, self.plan, self.holding = target, None, False

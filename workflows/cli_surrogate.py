@@ -150,6 +150,16 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from deapull.surrogate import export, store  # lazy: torch
+    model, meta = store.load(args.model)
+    out = Path(args.out) if args.out else Path(args.model) / export.EXPORT
+    export.export(model, out, card={"kind": model.kind, **meta.get("card", {})})
+    print(f"wrote {out}: torch.jit.load(path)(s0, actions, phi) -> (states, forces); s0 (2,) = (x m, u m/s), "
+          "actions (T, 2) = (V, dt s), phi (3,) = (m_c kg, mu_b, mu_t), float64")
+    return 0
+
+
 def cmd_experiments(args) -> int:
     from deapull.surrogate import experiments  # lazy: torch
     from deapull.surrogate.data import parse_setups  # lazy: torch
@@ -257,6 +267,11 @@ def register(sub) -> None:
     p.add_argument("--engine", default="auto", choices=("auto", "torch", "native"), help="rollout engine")
     p.add_argument("--strict", action="store_true", help="fail when an input leaves the training range")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("export", help="a trained f-coulomb model's rollout as one TorchScript file (no deapull needed)")
+    p.add_argument("--model", required=True, help="model folder written by `deapull train`")
+    p.add_argument("--out", default=None, help="the file (default <model>/model.ts)")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("experiments", help="the paper's six sets {C_i, C_i+1, C_i+2} for every model")
     p.add_argument("--data", required=True, help="folder with C1.nc .. C8.nc")

@@ -1,6 +1,5 @@
 """The TorchScript export of f-coulomb: a saved file, loaded without deapull's classes, rolls
 out as the model does."""
-import numpy as np
 import pytest
 import torch
 
@@ -36,3 +35,13 @@ def test_only_f_coulomb_is_exported(tmp_path, trained):
 def test_a_missing_export_is_named(tmp_path):
     with pytest.raises(InputError, match="no such exported model"):
         export.load(tmp_path / "none.ts")
+
+
+def test_deapull_export_writes_the_file_with_its_card(tmp_path, trained):
+    from deapull.surrogate import store
+    from deapull.workflows.cli import main
+    result = trained("f-coulomb")
+    folder = store.save(result.model, tmp_path / "m", result.summary(), result.history)
+    assert main(["export", "--model", str(folder)]) == 0
+    _, card = export.load(folder / export.EXPORT)
+    assert card["kind"] == "f-coulomb" and card["training_coins"] == ["C1"]
