@@ -24,7 +24,7 @@ from tqdm import tqdm
 from deapull.errors import InputError
 from deapull.io import write_csv, write_json, write_text
 from deapull.paper import ABAQUS_S, TABLE2
-from deapull.surrogate import ensemble, store
+from deapull.surrogate import card, ensemble, store
 from deapull.surrogate.data import load_sweep
 from deapull.surrogate.evaluate import METRICS, evaluate
 from deapull.surrogate.models import KINDS
@@ -125,9 +125,46 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=SET_
                                           "repeats": repeats, "band_level": ensemble.LEVEL,
                                           "fem_wall_time_s": {n: d.wall_time_s for n, d in data.items()},
                                           "config": {k: v for k, v in vars(base).items() if k != "kind"}}, indent=2)
+    write_json(out / SUMMARY, summary(rows, kinds, data), indent=2)
     plot_boxes(curves, kinds, sets, out / "x_error_boxplot.png")
     plot_rollouts(curves, kinds, sets, out / "rollouts.png", bands)
     return rows
+
+
+#: the results file of a run (``deapull experiments --publish DIR`` copies it to DIR/surrogate_experiments.json)
+SUMMARY = "summary.json"
+SUMMARY_KEYS = ("mae_x_m", "mae_u_m_s", "mae_Fx_N", "mae_Fy_N", "x_error_pct_travel", "rollout_ms")
+
+
+def summary(rows: list[dict], kinds, data: dict) -> dict:
+    """The run's results file: Table II (mean over the sets, mean and std over repeats, beside the
+    paper's), each set's errors and ensemble coverage, how many sets each f leads on, and the
+    fidelity of the data."""
+    sets = sorted({r["set"] for r in rows})
+    pair = lambda v: [v[0], v[1]] if v[0] is not None else None  # noqa: E731
+    out = {"repeats": len({r.get("repeat", 0) for r in rows}), "sets": sets, "kinds": list(kinds),
+           "labels": {k: _label(k) for k in kinds}, "band_level": ensemble.LEVEL, "paper": PAPER,
+           "data": {"fidelity": sorted({card.fidelity_label(d.fidelity) for d in data.values()}),
+                    "fidelity_id": sorted({d.fidelity_id for d in data.values()})},
+           "table2": {k: {key: pair(_mean_spread(rows, k, key)) for key in SUMMARY_KEYS} for k in kinds},
+           "diverged": {k: sum(r["diverged"] for r in rows if r["model"] == k) for k in kinds},
+           "per_set": {str(i): {"train_val_test": list(SETS[i]),
+                                **{k: {key: pair(_set_value(rows, i, k, key)[:2]) for key in
+                                       ("mae_x_m", "x_error_pct_travel", "band_coverage")}
+                                   | {"diverged": _set_value(rows, i, k, "mae_x_m")[2]} for k in kinds}}
+                       for i in sets}}
+    baselines = [k for k in kinds if not KINDS[k].physics]
+    out["ahead"] = {}
+    for f_kind in (k for k in kinds if KINDS[k].physics):
+        def mae(i, kind):
+            mean = _set_value(rows, i, kind, "mae_x_m")[0]
+            return math.inf if mean is None else mean
+        out["ahead"][f_kind] = sum(all(mae(i, f_kind) < mae(i, b) for b in baselines) for i in sets) if baselines else None
+    cover = {k: [r["band_coverage"] for r in rows if r["model"] == k and r.get("band_coverage") is not None]
+             for k in kinds}
+    out["band_coverage"] = {k: {"mean": float(np.mean(v)), "min": float(min(v)), "rollouts": len(v)}
+                            for k, v in cover.items() if v}
+    return out
 
 
 def restart_columns(result) -> dict:

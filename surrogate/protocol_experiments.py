@@ -372,6 +372,14 @@ def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kind
             rows.append({**{k: row.get(k) for k in CSV_COLUMNS}, "pair": "/".join(held)})
     write_csv(out / "pairs.csv", rows, ("pair", *CSV_COLUMNS))
     write_text(out / "pairs.md", pairs_table(rows, kinds) + "\n")
+    runs = list(dict.fromkeys((r["pair"], r["run"]) for r in rows))
+    by = {(r["model"], r["run"]): r for r in rows}
+    write_json(out / "pairs.json", {
+        "kinds": list(kinds), "labels": {k: KINDS[k].label for k in kinds},
+        "designs": {"/".join(h): {"train": list(d.train_coins), "val": list(d.val_coins)} for h, d in pair_designs()},
+        "runs": [{"pair": p, "run": n, "travel_m": by[(kinds[0], n)]["travel_m"],
+                  **{k: None if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for k in kinds}}
+                 for p, n in runs]}, indent=2)
     return rows
 
 

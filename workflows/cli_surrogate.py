@@ -174,7 +174,13 @@ def cmd_experiments(args) -> int:
     print(experiments.summary_table(rows, kinds))
     print()
     print(experiments.per_set_table(rows, kinds))
-    print(f"wrote {args.out}/experiments.csv, table.txt, x_error_boxplot.png, rollouts.png")
+    print(f"wrote {args.out}/experiments.csv, table.txt, summary.json, x_error_boxplot.png, rollouts.png")
+    if args.publish:
+        import shutil
+        target = Path(args.publish) / "surrogate_experiments.json"
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(Path(args.out) / experiments.SUMMARY, target)
+        print(f"published {target}")
     return 0
 
 
@@ -186,7 +192,13 @@ def cmd_experiments_protocols(args) -> int:
         rows = pe.run_pairs(args.data, args.out, _config(args, "f"), kinds=kinds,
                             restarts={k: restarts_for(args, k) for k in kinds})
         print(pe.pairs_table(rows, kinds))
-        print(f"wrote {args.out}/pairs.csv, pairs.md")
+        print(f"wrote {args.out}/pairs.csv, pairs.md, pairs.json")
+        if args.publish:
+            import shutil
+            target = Path(args.publish) / "surrogate_pairs.json"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(Path(args.out) / "pairs.json", target)
+            print(f"published {target}")
         return 0
     kinds = parse_setups(args.models) if args.models else list(pe.DEFAULT_KINDS)
     design = pe.Design(train_coins=tuple(parse_setups(args.train_coins)), val_coins=tuple(parse_setups(args.val_coins)),
@@ -280,6 +292,8 @@ def register(sub) -> None:
                    f"identifies, {','.join(k for k, c in KINDS.items() if c.training_coins == 1)}; "
                    f"also {','.join(k for k, c in KINDS.items() if c.training_coins > 1) or 'none'})")
     p.add_argument("--sets", default="1,2,3,4,5,6", help="which sets to run (default 1,2,3,4,5,6)")
+    p.add_argument("--publish", default="", help="also copy summary.json to DIR/surrogate_experiments.json "
+                   "(bench/reference: the docs' figures)")
     p.add_argument("--repeats", type=int, default=3,
                    help="independent repeats of every model (seeds --seed + r x restarts on): mean and spread (3)")
     _training_args(p, 1000)
@@ -295,6 +309,8 @@ def register(sub) -> None:
     p.add_argument("--held-out-pairs", action="store_true",
                    help="leave one friction pair out at a time (C1/C2 .. C7/C8), train on the other coins' ramps "
                    "(--models, default f-coulomb; the coin and protocol flags are not used)")
+    p.add_argument("--publish", default="", help="with --held-out-pairs: also copy pairs.json to "
+                   "DIR/surrogate_pairs.json (bench/reference)")
     p.add_argument("--train-coins", default="C1", help="training coins (C1)")
     p.add_argument("--val-coins", default="C3", help="validation coins, early stopping (C3)")
     p.add_argument("--test-coins", default="C5,C7", help="held-out coins tested on every protocol (C5,C7)")

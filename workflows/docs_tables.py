@@ -15,7 +15,7 @@ from deapull.io import atomic_write
 from deapull.paper import ABAQUS_S
 
 REPO = Path(__file__).resolve().parents[1]
-PAGES = ("README.md", "docs/physics.md", "docs/fem_accuracy.md")
+PAGES = ("README.md", "docs/physics.md", "docs/fem_accuracy.md", "docs/surrogate.md", "docs/control.md")
 
 
 def _f(value, fmt: str) -> str:
@@ -72,10 +72,82 @@ def headline(result: dict) -> str:
     return "\n".join(rows)
 
 
+def _ms(pair, scale: float, fmt: str = ".3g") -> str:
+    """"mean ± std" of a [mean, std] pair (– when None)."""
+    if not pair or pair[0] is None:
+        return "–"
+    return format(pair[0] / scale, fmt) + (f" ± {pair[1] / scale:.2g}" if pair[1] else "")
+
+
+def surrogate_table2(result: dict) -> str:
+    """The paper's Table II beside ours (mean over the six test setups; mean ± std over the repeats),
+    then x error per set with the ensemble band's coverage."""
+    kinds, labels, paper = result["kinds"], result["labels"], result["paper"]
+    rows = [f"| mean over the {len(result['sets'])} test setups ({result['repeats']} repeats) | "
+            + " | ".join(labels[k] for k in kinds) + " | paper f | paper LSTM | paper NN |",
+            "|---|" + "---|" * (len(kinds) + 3)]
+    for key, label, scale in (("mae_x_m", "MAE x [1e-4 m]", 1e-4), ("mae_Fx_N", "MAE Fx [1e-4 N]", 1e-4),
+                              ("mae_Fy_N", "MAE Fy [1e-4 N]", 1e-4), ("x_error_pct_travel", "x error [% of travel]", 1),
+                              ("rollout_ms", "1 s rollout [ms]", 1)):
+        cells = [_ms(result["table2"][k][key], scale) for k in kinds]
+        ref = [paper.get(key, {}).get(m) for m in ("f", "lstm", "nn")]
+        rows.append(f"| {label} | " + " | ".join(cells) + " | "
+                    + " | ".join("–" if v is None else f"{v / scale:.3g}" for v in ref) + " |")
+    rows.append("| diverged rollouts | " + " | ".join(str(result["diverged"][k]) for k in kinds) + " | | | |")
+    banded = [k for k in kinds if k in result.get("band_coverage", {})]
+    rows += ["", "| set (train/val/test) | " + " | ".join(f"{labels[k]} x error [%]" for k in kinds)
+             + "".join(f" | {labels[k]} {round(100 * result['band_level'])} % band covers [%]" for k in banded) + " |",
+             "|---|" + "---|" * (len(kinds) + len(banded))]
+    for i, rec in result["per_set"].items():
+        cells = [_ms(rec[k]["x_error_pct_travel"], 1, ".2f") for k in kinds]
+        cells += [_ms(rec[k]["band_coverage"], 0.01, ".1f") for k in banded]
+        rows.append(f"| {i} ({'/'.join(rec['train_val_test'])}) | " + " | ".join(cells) + " |")
+    rows.append("")
+    for k, n in result["ahead"].items():
+        rows.append(f"* {labels[k]} ahead of the black boxes (MAE x) on **{n}/{len(result['sets'])}** sets;")
+    for k, c in result.get("band_coverage", {}).items():
+        rows.append(f"* its {round(100 * result['band_level'])} % band covers {100 * c['mean']:.1f} % of the test "
+                    f"runs' points (lowest rollout {100 * c['min']:.1f} %; goal ≥ 80 %);")
+    rows.append(f"* data: fidelity {', '.join(result['data']['fidelity'])} "
+                f"({', '.join(result['data']['fidelity_id'])}).")
+    return "\n".join(rows)
+
+
+def surrogate_pairs(result: dict) -> str:
+    """x error of each held-out ramp (% of travel), one friction pair left out at a time."""
+    kinds, labels = result["kinds"], result["labels"]
+    rows = ["| held-out pair | trained on (validated on) | ramp | travel mm | "
+            + " | ".join(f"{labels[k]} [%]" for k in kinds) + " |", "|---|---|---|---|" + "---|" * len(kinds)]
+    for r in result["runs"]:
+        d = result["designs"][r["pair"]]
+        rows.append(f"| {r['pair']} | {','.join(d['train'])} ({','.join(d['val'])}) | {r['run']} | "
+                    f"{1e3 * r['travel_m']:.3f} | " + " | ".join(_f(r[k], ".2f") for k in kinds) + " |")
+    worst = {k: max((r[k] if r[k] is not None else math.inf) for r in result["runs"]) for k in kinds}
+    rows += ["", *(f"* {labels[k]}: largest {_f(worst[k], '.2f')} % (goal ≤ 1 %);" for k in kinds)]
+    rows[-1] = rows[-1].rstrip(";") + "."
+    return "\n".join(rows)
+
+
+def surrogate_headline(result: dict) -> str:
+    """The README's surrogate line: the default model's pooled MAE of x beside the paper's."""
+    k = "f-coulomb" if "f-coulomb" in result["kinds"] else result["kinds"][0]
+    paper = result["paper"]["mae_x_m"]
+    worst = max((rec[k]["x_error_pct_travel"] or [math.inf])[0] for rec in result["per_set"].values())
+    return "\n".join([
+        "| what | ours | paper |", "|---|---|---|",
+        f"| surrogate: MAE of x over the six test setups (Table II) | {_ms(result['table2'][k]['mae_x_m'], 1e-4)} "
+        f"× 1e-4 m | f {paper['f'] / 1e-4:.2f}, LSTM {paper['lstm'] / 1e-4:.2f}, NN {paper['nn'] / 1e-4:.2f} × 1e-4 m |",
+        f"| surrogate: sets where f leads NN and LSTM; its worst set | {result['ahead'].get(k)}/{len(result['sets'])}; "
+        f"{_f(worst, '.2f')} % of travel | – |"])
+
+
 #: block name -> (results file, renderer)
 BLOCKS = {
     "contact_reference": ("bench/reference/contact_reference.json", contact_reference),
     "headline": ("bench/reference/contact_reference.json", headline),
+    "surrogate_table2": ("bench/reference/surrogate_experiments.json", surrogate_table2),
+    "surrogate_pairs": ("bench/reference/surrogate_pairs.json", surrogate_pairs),
+    "surrogate_headline": ("bench/reference/surrogate_experiments.json", surrogate_headline),
 }
 
 _BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(\n<!-- /results:(?P=name) -->)", re.S)
