@@ -69,6 +69,7 @@ else
 	@test -f $(MODELS)/fa_push/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 		--model f-coulomb --epochs 300 --runs $(DATA)/push --out $(MODELS)/fa_push
 	$(DEAPULL) control --preset $(PRESET) --data $(DATA) --out $(OUT)/control
+	cp $(OUT)/control/summary.json bench/reference/control_surrogate.json
 endif
 
 FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7

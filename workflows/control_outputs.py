@@ -120,6 +120,32 @@ def summary_rows(rows: list[dict], tolerance_m: float) -> list[dict]:
     return out
 
 
+def summary_counts(rows: list[dict]) -> list[dict]:
+    """Per (policy, plant, noise, task), the counts and medians as numbers (the results file
+    ``summary.json`` the docs' control table is generated from)."""
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault((r["policy"], r["plant"], r["noise_std_m"], r.get("setpoints_mm", "")), []).append(r)
+    out = []
+    for (policy, plant, noise, task), group in groups.items():
+        done = [r for r in group if not str(r.get("status", "")).startswith("unreachable")]
+        its = [r["iterations_to_target"] for r in done if r["reached"]]
+        settled_its = [r["iterations_to_target"] for r in done if r["settled"]]
+        later = [r for r in done if r.get("episode", 0) > 0]
+        later_its = [r["iterations_to_target"] for r in later if r["settled"]]
+        overshoot = [r["overshoot_m"] for r in done if r.get("overshoot_m") is not None]
+        median = (lambda v: float(np.median(v)) if v else None)  # noqa: E731
+        out.append({"policy": policy, "plant": plant, "noise_std_m": float(noise), "task": task,
+                    "episodes": len(done), "unreachable": len(group) - len(done), "reached": len(its),
+                    "settled": len(settled_its), "median_iterations": median(its),
+                    "settled_within_100": sum(n <= 100 for n in settled_its),
+                    "median_settled_iterations": median(settled_its),
+                    "later_episodes": len(later), "later_settled": len(later_its),
+                    "later_median_iterations": median(later_its),
+                    "largest_overshoot_m": max(overshoot) if overshoot else None})
+    return out
+
+
 def summary_table(rows: list[dict], tolerance_m: float) -> str:
     """Markdown: per policy, plant and noise, beside the paper's iterations and time."""
     return markdown_table(summary_rows(rows, tolerance_m), [

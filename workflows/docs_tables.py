@@ -141,6 +141,48 @@ def surrogate_headline(result: dict) -> str:
         f"{_f(worst, '.2f')} % of travel | – |"])
 
 
+def control_goals(result: dict) -> str:
+    """The control table (surrogate plants) and the MPC's goals G1–G4 measured against it."""
+    groups = result["groups"]
+    rows = ["| policy | plant | noise (m) | reached | settled | median iterations | settled within 100 | "
+            "episodes 2–N settled (median) | largest overshoot µm |", "|---|---|---|---|---|---|---|---|---|"]
+    for g in groups:
+        rows.append(f"| {g['policy']} | {g['plant']} | {g['noise_std_m']:g} | {g['reached']}/{g['episodes']} | "
+                    f"{g['settled']}/{g['episodes']} | {_f(g['median_iterations'], '.0f')} | "
+                    f"{g['settled_within_100']} | {g['later_settled']}/{g['later_episodes']} "
+                    f"({_f(g['later_median_iterations'], '.0f')}) | "
+                    f"{_f(None if g['largest_overshoot_m'] is None else 1e6 * g['largest_overshoot_m'], '.1f')} |")
+    mpc = [g for g in groups if g["policy"] == "mpc"]
+
+    def at(noise):
+        return [g for g in mpc if math.isclose(g["noise_std_m"], noise, rel_tol=1e-9, abs_tol=1e-15)]
+
+    def pooled(gs, key):
+        return sum(g[key] for g in gs)
+    lines = []
+    for noise in (0.0, 1e-4, 1e-3):
+        gs = at(noise)
+        if gs:
+            ok = all(g["reached"] == g["episodes"] and (g["median_iterations"] or math.inf) <= 100 for g in gs)
+            lines.append(f"* G1 at noise {noise:g}: " + ", ".join(
+                f"{g['plant']} reached {g['reached']}/{g['episodes']}, median {_f(g['median_iterations'], '.0f')}"
+                for g in gs) + f" (goal 10/10, median ≤ 100: {'met' if ok else 'not met'});")
+    gs = at(1e-4)
+    if gs:
+        n, settled = pooled(gs, "episodes"), pooled(gs, "settled")
+        lines.append(f"* G2 at 1e-4: settled {settled}/{n}, within 100 iterations {pooled(gs, 'settled_within_100')}/{n} "
+                     f"(goal {n}/{n}, median ≤ 300, ≥ {round(0.8 * n)}/{n} within 100);")
+        lines.append(f"* G3 at 1e-4, episodes 2–N: settled {pooled(gs, 'later_settled')}/{pooled(gs, 'later_episodes')}, "
+                     "medians " + ", ".join(_f(g["later_median_iterations"], ".0f") for g in gs)
+                     + " (goal all, median ≤ 100);")
+    gs = at(1e-3)
+    if gs:
+        lines.append(f"* G4 at 1e-3: settled {pooled(gs, 'settled')}/{pooled(gs, 'episodes')} (reported; reaching is G1).")
+    if lines:
+        lines[-1] = lines[-1].rstrip(";.") + "."
+    return "\n".join(rows + [""] + lines)
+
+
 #: block name -> (results file, renderer)
 BLOCKS = {
     "contact_reference": ("bench/reference/contact_reference.json", contact_reference),
@@ -148,6 +190,7 @@ BLOCKS = {
     "surrogate_table2": ("bench/reference/surrogate_experiments.json", surrogate_table2),
     "surrogate_pairs": ("bench/reference/surrogate_pairs.json", surrogate_pairs),
     "surrogate_headline": ("bench/reference/surrogate_experiments.json", surrogate_headline),
+    "control_goals": ("bench/reference/control_surrogate.json", control_goals),
 }
 
 _BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(\n<!-- /results:(?P=name) -->)", re.S)

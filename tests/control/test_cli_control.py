@@ -322,6 +322,25 @@ def test_the_tables_bound_column_sums_each_reached_episodes_bound_at_the_tasks_t
     assert summary_rows(rows, 2e-5)[0]["bound"] == "2.0/3", "the task's tolerance, not a fixed one"
 
 
+def test_the_results_file_counts_episode_one_apart_and_the_docs_judge_the_goals_from_it():
+    from deapull.workflows.control_outputs import summary_counts, summary_rows
+    from deapull.workflows.docs_tables import control_goals
+    row = dict(policy="mpc", plant="surrogate:C1", noise_std_m=1e-4, setpoints_mm="-1", overshoot_m=0.0,
+               final_abs_error_m=0.0, ms_per_iteration=1.0, training_steps=None)
+    rows = [dict(row, episode=0, reached=True, settled=True, iterations_to_target=400),
+            dict(row, episode=1, reached=True, settled=True, iterations_to_target=80),
+            dict(row, episode=2, reached=True, settled=False, iterations_to_target=70),
+            dict(row, episode=3, reached=True, settled=True, iterations_to_target=90)]
+    (g,) = summary_counts(rows)
+    assert (g["episodes"], g["settled"], g["settled_within_100"], g["later_episodes"], g["later_settled"]) == (4, 3, 2, 3, 2)
+    assert g["later_median_iterations"] == 85 and g["median_iterations"] == 85
+    assert summary_rows(rows, 1e-5)[0]["first"] == "settled in 400" and summary_rows(rows, 1e-5)[0]["later"] == "2/3, 85"
+    text = control_goals({"groups": [g]})
+    assert "G2 at 1e-4: settled 3/4, within 100 iterations 2/4" in text
+    assert "G3 at 1e-4, episodes 2–N: settled 2/3, medians 85" in text
+    assert "G1 at noise 0.0001: surrogate:C1 reached 4/4, median 85 (goal 10/10, median ≤ 100: met)" in text
+
+
 def _parsed(*argv):
     from deapull.workflows.cli import build_parser
     from deapull.workflows.cli_control import apply_preset
