@@ -25,7 +25,7 @@ from deapull.errors import InputError
 from deapull.io import write_csv, write_json, write_text
 from deapull.paper import ABAQUS_S, TABLE2
 from deapull.surrogate import card, ensemble, store
-from deapull.surrogate.data import load_sweep
+from deapull.surrogate.data import DatasetError, load_sweep
 from deapull.surrogate.evaluate import METRICS, evaluate
 from deapull.surrogate.models import KINDS
 from deapull.surrogate.rollout import OutOfRangeWarning
@@ -128,7 +128,47 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=SET_
     write_json(out / SUMMARY, summary(rows, kinds, data), indent=2)
     plot_boxes(curves, kinds, sets, out / "x_error_boxplot.png")
     plot_rollouts(curves, kinds, sets, out / "rollouts.png", bands)
+    plot_coin_share(data, out / "coin_share.png")
     return rows
+
+
+def plot_coin_share(data: dict, path: Path) -> Path | None:
+    """What a training coin may never show: the coin's speed as a share of its contact patch's
+    (u / patch_vx, the FEM's traction-weighted speed of the DEA points touching the coin) against
+    the coin's lag behind the tip's free-end face (tip_ux − x), for every coin whose dataset records
+    them. A coin whose share stays near 1 is dragged along; one whose share falls to 0 stands
+    while the tip slides over it."""
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a figure is drawn
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from deapull import dataset
+    curves = {}
+    for name, d in data.items():
+        try:
+            run = dataset.read(d.path, ("t", "x", "u", "V"), optional=("patch_vx", "tip_ux"))
+        except DatasetError:
+            continue
+        c = run.columns
+        if "patch_vx" not in c or "tip_ux" not in c:
+            continue
+        sliding = (np.abs(c["patch_vx"]) > 1e-5) & (c["V"] > 0.5 * c["V"].max())
+        share = np.where(sliding, c["u"] / np.where(sliding, c["patch_vx"], 1.0), np.nan)
+        curves[name] = (1e3 * np.abs(c["tip_ux"] - c["x"]), share, d)
+    if not curves:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for j, (name, (lag, share, d)) in enumerate(curves.items()):
+        ax.plot(lag, share, color=f"C{j}", lw=1.2, label=f"{name} (μ_b {d.mu_b:g}, μ_t {d.mu_t:g})")
+    ax.set_xlabel("the coin's lag behind the tip's free-end face (mm)")
+    ax.set_ylabel("coin speed / contact patch speed")
+    ax.set_title("upper half of the ramp: a coin whose share falls stands while the tip slides over it", fontsize=8)
+    ax.set_ylim(-0.1, 1.2)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
 
 
 #: the results file of a run (``deapull experiments --publish DIR`` copies it to DIR/surrogate_experiments.json)

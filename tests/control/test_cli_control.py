@@ -336,8 +336,8 @@ def test_the_results_file_counts_episode_one_apart_and_the_docs_judge_the_goals_
     assert g["later_median_iterations"] == 85 and g["median_iterations"] == 85
     assert summary_rows(rows, 1e-5)[0]["first"] == "settled in 400" and summary_rows(rows, 1e-5)[0]["later"] == "2/3, 85"
     text = control_goals({"groups": [g]})
-    assert "G2 at 1e-4: settled 3/4, within 100 iterations 2/4" in text
-    assert "G3 at 1e-4, episodes 2–N: settled 2/3, medians 85" in text
+    assert "G2 at 1e-4: settled 3/4, medians 90, within 100 iterations 2/4 (goal 4/4" in text and "not met" in text
+    assert "G3 at 1e-4, episodes 2–N: settled 2/3, medians 85 (goal all, median ≤ 100: not met)" in text
     assert "G1 at noise 0.0001: surrogate:C1 reached 4/4, median 85 (goal 10/10, median ≤ 100: met)" in text
 
 
