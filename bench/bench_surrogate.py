@@ -101,7 +101,7 @@ def main(argv=None) -> int:
             for engine in engines:
                 row[f"cpu_b1_{engine}_ms"], row[f"cpu_b1_{engine}_min_ms"] = median_ms(
                     lambda: rollout(model, phi, s0, actions, engine=engine), args.repeats)
-            if kind == "f-coulomb":
+            if export.supports(model):
                 path = export.export(model, Path(args.scratch) / f"{kind}.ts")
                 module, _ = export.load(path)
                 st, at = torch.as_tensor(s0), torch.as_tensor(actions)

@@ -14,6 +14,7 @@ Every check names the file and the variable, so a bad sweep fails before any tra
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,11 +69,15 @@ class SetupData:
         The FEM run's wall time (attribute ``wall_time_total_s``; NaN when absent).
     sha256 : str
         The file's SHA-256 (hex).
+    scene_toml, setup : str
+        The run's resolved scene and setup (its attributes; "" when absent).
     fidelity : str or None
-        The scene fidelity the run was made at ("" the scene file as written, a
-        ``[fidelities.NAME]``, None other overrides; :func:`deapull.scene.fidelity_of_resolved`).
+        (property) The scene fidelity the run was made at ("" the scene file as written, a
+        ``[fidelities.NAME]``, None other overrides; :func:`deapull.scene.fidelity_of_resolved`),
+        worked out when first asked.
     fidelity_id : str
-        The fingerprint of its mesh, solver, contact and time sections ("" without ``scene_toml``).
+        (property) The fingerprint of its mesh, solver, contact and time sections ("" without
+        ``scene_toml``).
     """
 
     name: str
@@ -91,8 +96,20 @@ class SetupData:
     mu_t: float = float("nan")
     slip_rate_reg_m_s: float = float("nan")
     sha256: str = ""
-    fidelity: str | None = None
-    fidelity_id: str = ""
+    scene_toml: str = ""
+    setup: str = ""
+
+    @functools.cached_property
+    def _fidelity(self) -> tuple[str | None, str]:
+        return scenes.fidelity_of_resolved(self.scene_toml, self.setup)
+
+    @property
+    def fidelity(self) -> str | None:
+        return self._fidelity[0]
+
+    @property
+    def fidelity_id(self) -> str:
+        return self._fidelity[1]
 
     @property
     def n_steps(self) -> int:
@@ -179,13 +196,11 @@ def load_setup(path: str | Path) -> SetupData:
         raise DatasetError(f"{run.path}: variable 'dt': non-positive time step {dt[bad]:g} s at step {bad}")
     optional = {field: run.number(name, positive=False, default=float("nan"))
                 for name, field in OPTIONAL_ATTRS.items()}
-    fidelity, fidelity_id = scenes.fidelity_of_resolved(str(run.attrs.get("scene_toml", "")),
-                                                        str(run.attrs.get("setup", "")))
     return SetupData(name=run.path.stem, path=run.path, **columns, mass_kg=run.number("coin_mass_kg"),
                      mu_b=run.number("coin_mu_b"), gravity_m_s2=run.number("gravity_m_s2"),
                      wall_time_s=float(run.attrs.get("wall_time_total_s", float("nan"))), **optional,
-                     sha256=hashlib.sha256(run.path.read_bytes()).hexdigest(), fidelity=fidelity,
-                     fidelity_id=fidelity_id)
+                     sha256=hashlib.sha256(run.path.read_bytes()).hexdigest(),
+                     scene_toml=str(run.attrs.get("scene_toml", "")), setup=str(run.attrs.get("setup", "")))
 
 
 def require_tip_contact(data: SetupData) -> None:

@@ -181,25 +181,20 @@ def summary(rows: list[dict], kinds, data: dict) -> dict:
     paper's), each set's errors and ensemble coverage, how many sets each f leads on, and the
     fidelity of the data."""
     sets = sorted({r["set"] for r in rows})
-    pair = lambda v: [v[0], v[1]] if v[0] is not None else None  # noqa: E731
     out = {"repeats": len({r.get("repeat", 0) for r in rows}), "sets": sets, "kinds": list(kinds),
            "labels": {k: _label(k) for k in kinds}, "band_level": ensemble.LEVEL, "paper": PAPER,
            "data": {"fidelity": sorted({card.fidelity_label(d.fidelity) for d in data.values()}),
                     "fidelity_id": sorted({d.fidelity_id for d in data.values()})},
-           "table2": {k: {key: pair(_mean_spread(rows, k, key)) for key in SUMMARY_KEYS} for k in kinds},
+           "table2": {k: {key: _pair(_mean_spread(rows, k, key)) for key in SUMMARY_KEYS} for k in kinds},
            "diverged": {k: sum(r["diverged"] for r in rows if r["model"] == k) for k in kinds},
            "per_set": {str(i): {"train_val_test": list(SETS[i]),
-                                **{k: {key: pair(_set_value(rows, i, k, key)[:2]) for key in
+                                **{k: {key: _pair(_set_value(rows, i, k, key)[:2]) for key in
                                        ("mae_x_m", "x_error_pct_travel", "band_coverage")}
                                    | {"diverged": _set_value(rows, i, k, "mae_x_m")[2]} for k in kinds}}
                        for i in sets}}
     baselines = [k for k in kinds if not KINDS[k].physics]
-    out["ahead"] = {}
-    for f_kind in (k for k in kinds if KINDS[k].physics):
-        def mae(i, kind):
-            mean = _set_value(rows, i, kind, "mae_x_m")[0]
-            return math.inf if mean is None else mean
-        out["ahead"][f_kind] = sum(all(mae(i, f_kind) < mae(i, b) for b in baselines) for i in sets) if baselines else None
+    out["ahead"] = {f_kind: _ahead(rows, f_kind, baselines, sets) if baselines else None
+                    for f_kind in kinds if KINDS[f_kind].physics}
     cover = {k: [r["band_coverage"] for r in rows if r["model"] == k and r.get("band_coverage") is not None]
              for k in kinds}
     out["band_coverage"] = {k: {"mean": float(np.mean(v)), "min": float(min(v)), "rollouts": len(v)}
@@ -296,6 +291,20 @@ def _set_value(rows: list[dict], i: int, kind: str, key: str) -> tuple:
     return float(np.mean(values)), float(np.std(values)), diverged, len(mine)
 
 
+def _ahead(rows: list[dict], f_kind: str, baselines, sets) -> int:
+    """On how many ``sets`` ``f_kind``'s MAE of x (mean over repeats) is below every baseline's (a
+    set where a model always diverged counts as infinite)."""
+    def mae(i, kind):
+        mean = _set_value(rows, i, kind, "mae_x_m")[0]
+        return math.inf if mean is None else mean
+    return sum(all(mae(i, f_kind) < mae(i, b) for b in baselines) for i in sets)
+
+
+def _pair(value) -> list | None:
+    """(mean, std) as a JSON list; None when there is no mean."""
+    return None if value[0] is None else [value[0], value[1]]
+
+
 def _set_cell(rows, i, kind, key, scale) -> str:
     mean, spread, diverged, n = _set_value(rows, i, kind, key)
     if mean is None:
@@ -323,12 +332,9 @@ def per_set_table(rows: list[dict], kinds=SET_KINDS) -> str:
     verdicts = []
     baselines = [k for k in kinds if not KINDS[k].physics]
 
-    def mae(i, kind):
-        mean = _set_value(rows, i, kind, "mae_x_m")[0]
-        return math.inf if mean is None else mean
     for f_kind in (k for k in kinds if KINDS[k].physics):
         if baselines:
-            ahead = sum(all(mae(i, f_kind) < mae(i, b) for b in baselines) for i in sets)
+            ahead = _ahead(rows, f_kind, baselines, sets)
             verdicts.append(f"{_label(f_kind)} ahead of {' and '.join(_label(b) for b in baselines)} "
                             f"(MAE x) on {ahead}/{len(sets)} sets")
     for kind in banded:

@@ -32,13 +32,18 @@ from deapull.surrogate.models.tip_contact import coin_step
 EXPORT = "model.ts"
 
 
+def supports(model) -> bool:
+    """Whether ``model``'s kind has a TorchScript export (f-coulomb)."""
+    return type(model) is TipContactModel
+
+
 class TipContactRollout(nn.Module):
     """The recursive rollout of a :class:`~deapull.surrogate.models.TipContactModel` (kind
     ``f-coulomb``), in TorchScript's subset of Python."""
 
     def __init__(self, model: TipContactModel):
         super().__init__()
-        if type(model) is not TipContactModel:
+        if not supports(model):
             raise InputError(f"model kind {model.kind!r} has no TorchScript export; exported: f-coulomb")
         self.material = copy.deepcopy(model.material).float().eval()
         for name in ("in_mean", "in_std", "s_std", "z_mean", "z_std"):

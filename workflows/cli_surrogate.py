@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 
 from deapull.errors import InputError
-from deapull.io import write_json
+from deapull.io import write_json, write_text
 
 log = logging.getLogger(__name__)
 
@@ -150,6 +150,14 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+def _publish(args, source: Path, name: str) -> None:
+    """``--publish DIR``: copy a run's results file to DIR/``name`` (atomically; the docs' tables
+    are generated from bench/reference)."""
+    if args.publish:
+        target = write_text(Path(args.publish) / name, source.read_text())
+        print(f"published {target}")
+
+
 def cmd_export(args) -> int:
     from deapull.surrogate import export, store  # lazy: torch
     model, meta = store.load(args.model)
@@ -175,12 +183,7 @@ def cmd_experiments(args) -> int:
     print()
     print(experiments.per_set_table(rows, kinds))
     print(f"wrote {args.out}/experiments.csv, table.txt, summary.json, x_error_boxplot.png, rollouts.png")
-    if args.publish:
-        import shutil
-        target = Path(args.publish) / "surrogate_experiments.json"
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(Path(args.out) / experiments.SUMMARY, target)
-        print(f"published {target}")
+    _publish(args, Path(args.out) / experiments.SUMMARY, "surrogate_experiments.json")
     return 0
 
 
@@ -193,12 +196,7 @@ def cmd_experiments_protocols(args) -> int:
                             restarts={k: restarts_for(args, k) for k in kinds})
         print(pe.pairs_table(rows, kinds))
         print(f"wrote {args.out}/pairs.csv, pairs.md, pairs.json")
-        if args.publish:
-            import shutil
-            target = Path(args.publish) / "surrogate_pairs.json"
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(Path(args.out) / "pairs.json", target)
-            print(f"published {target}")
+        _publish(args, Path(args.out) / "pairs.json", "surrogate_pairs.json")
         return 0
     kinds = parse_setups(args.models) if args.models else list(pe.DEFAULT_KINDS)
     design = pe.Design(train_coins=tuple(parse_setups(args.train_coins)), val_coins=tuple(parse_setups(args.val_coins)),

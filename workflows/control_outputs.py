@@ -88,9 +88,7 @@ def summary_rows(rows: list[dict], tolerance_m: float) -> list[dict]:
     information bound: the episodes that a controller can expect to settle at most in as many
     iterations as each took, knowing the plant's travel only from the observations
     (:func:`~deapull.control.filters.settle_bound`, docs/control.md "What noise allows")."""
-    groups: dict = {}
-    for r in rows:
-        groups.setdefault((r["policy"], r["plant"], r["noise_std_m"], r.get("setpoints_mm", "")), []).append(r)
+    groups = _cells(rows)
     out = []
     for (policy, plant, noise, task), group in groups.items():
         its = [r["iterations_to_target"] for r in group if r["reached"]]
@@ -120,12 +118,18 @@ def summary_rows(rows: list[dict], tolerance_m: float) -> list[dict]:
     return out
 
 
-def summary_counts(rows: list[dict]) -> list[dict]:
-    """Per (policy, plant, noise, task), the counts and medians as numbers (the results file
-    ``summary.json`` the docs' control table is generated from)."""
+def _cells(rows: list[dict]) -> dict:
+    """The episode rows by (policy, plant, noise, setpoints), in order of first appearance."""
     groups: dict = {}
     for r in rows:
         groups.setdefault((r["policy"], r["plant"], r["noise_std_m"], r.get("setpoints_mm", "")), []).append(r)
+    return groups
+
+
+def summary_counts(rows: list[dict]) -> list[dict]:
+    """Per (policy, plant, noise, task), the counts and medians as numbers (the results file
+    ``summary.json`` the docs' control table is generated from)."""
+    groups = _cells(rows)
     out = []
     for (policy, plant, noise, task), group in groups.items():
         done = [r for r in group if not str(r.get("status", "")).startswith("unreachable")]
