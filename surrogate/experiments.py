@@ -84,7 +84,7 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=SET_
         if kind not in KINDS:
             raise InputError(f"model {kind!r} is not a model; choose from {', '.join(KINDS)}")
     if repeats < 1:
-        raise InputError(f"repeats = {repeats}: at least 1")
+        raise InputError(f"--repeats {repeats}: must be a whole number of at least 1")
     needed = sorted({name for i in sets for name in SETS[i]}, key=lambda n: int(n[1:]))
     data = load_sweep(data_dir, needed)
     out = Path(out_dir)

@@ -100,6 +100,9 @@ def test_restarts_per_model_kind(sweep_dir, tmp_path):
     for bad in ("0", "f=0", "f=1.5", "f=", "x"):
         with pytest.raises(InputError, match=r"--restarts .*must be a whole number of at least 1"):
             parse_restarts(bad)
+    with pytest.raises(InputError, match=r"--repeats 0: must be a whole number of at least 1"):
+        _run("experiments", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "e"), "--repeats", "0")
+    assert not (tmp_path / "e").exists()
     with pytest.raises(InputError, match=r"--restarts lstmm=2: lstmm is not a model"):
         _run("experiments", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "e"), "--restarts", "lstmm=2")
     out = tmp_path / "exp"
