@@ -28,6 +28,12 @@ SNES_REASONS = {getattr(PETSc.SNES.ConvergedReason, k): k for k in dir(PETSc.SNE
 
 
 PARALLEL_FACTOR_PACKAGES = ("mumps",)
+#: a Newton solve whose residual has not fallen below STALL_FACTOR x its smallest value for
+#: STALL_ITERATIONS iterations has stalled and is ended as diverged (:meth:`DEAProblem._converged`):
+#: at a friction reversal full Newton steps cycle through 4 residuals for all 40 iterations, each with a
+#: fresh Jacobian (tests/fem_solver/test_stepping.py counts the iterations a cycling step saves)
+STALL_FACTOR = 0.99
+STALL_ITERATIONS = 8
 #: MUMPS's workspace relaxation ICNTL(14), % over its analysis estimate (its default: 20). Under
 #: MPI on a loaded machine, every factorisation of a run failed from one step on
 #: (tests/fem_solver/test_fem.py::test_serial_and_mpi_solves_agree: once in CI, once in 3 runs beside
@@ -289,6 +295,7 @@ class DEAProblem:
         snes.setFunction(self._eval_F, self.b)
         snes.setJacobian(self._eval_J, self.A)
         snes.setTolerances(rtol=sv.newton_rtol, atol=sv.newton_atol, stol=0.0, max_it=sv.newton_max_it)
+        snes.setConvergenceTest(self._converged)
         ksp = snes.getKSP()
         ksp.setType("preonly")
         pc = ksp.getPC()
@@ -304,7 +311,35 @@ class DEAProblem:
             opts[prefix + "mat_mumps_icntl_14"] = MUMPS_WORKSPACE_RELAXATION
         self.snes = snes
         self._jacobian_ready, self._last_fnorm = False, 0.0
+        self._first_fnorm, self._best_fnorm, self._best_it, self.stalled = 0.0, 0.0, 0, False
         self.jacobian_assemblies = self.jacobian_reuses = 0
+
+    def _converged(self, snes, it, norms):
+        """PETSc's default test on the residual (``atol``, ``rtol`` against the first residual,
+        ``max_it``, NaN), plus a stall: no residual below :data:`STALL_FACTOR` × the smallest so far
+        in :data:`STALL_ITERATIONS` iterations ends the solve as diverged (``stalled``). Full Newton
+        steps at a friction reversal cycle between a few residuals for all of ``max_it`` iterations,
+        each with a fresh Jacobian; a damped line search that converges slowly sets a new smallest
+        residual every iteration and is not stopped."""
+        fnorm = norms[2]
+        R = PETSc.SNES.ConvergedReason
+        if it == 0:
+            self._first_fnorm, self._best_fnorm, self._best_it, self.stalled = fnorm, fnorm, 0, False
+        if not math.isfinite(fnorm):
+            return R.DIVERGED_FNORM_NAN
+        rtol, atol, _, max_it = snes.getTolerances()
+        if fnorm < atol:
+            return R.CONVERGED_FNORM_ABS
+        if it > 0 and fnorm <= rtol * self._first_fnorm:
+            return R.CONVERGED_FNORM_RELATIVE
+        if fnorm < STALL_FACTOR * self._best_fnorm:
+            self._best_fnorm, self._best_it = fnorm, it
+        elif it - self._best_it >= STALL_ITERATIONS:
+            self.stalled = True
+            return R.DIVERGED_MAX_IT
+        if it >= max_it:
+            return R.DIVERGED_MAX_IT
+        return R.ITERATING
 
     def set_line_search(self, kind: str) -> None:
         """The line search of the Newton solves: ``basic`` (full steps, the default) or a PETSc
@@ -389,6 +424,8 @@ class DEAProblem:
         rnorm = self.snes.getFunctionNorm()
         ok = reason > 0 and finite
         name = SNES_REASONS.get(reason, str(reason)) if finite else "DIVERGED_FNORM_NAN"
+        if self.stalled and reason <= 0:
+            name = f"DIVERGED_STALLED (no residual below {STALL_FACTOR:g} x the smallest in {STALL_ITERATIONS} iterations)"
         if name == "DIVERGED_LINEAR_SOLVE":
             name += self._factor_error()
         return SolveResult(ok, name, self.snes.getIterationNumber(), float(rnorm))

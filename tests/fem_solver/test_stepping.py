@@ -392,3 +392,25 @@ def test_the_coins_acceleration_in_the_first_guess_saves_coupling_solves_and_mov
     a, b = xr.open_dataset(with_), xr.open_dataset(without)
     assert int(a.coupling_iterations.sum()) < int(b.coupling_iterations.sum())
     assert float(np.abs(a.x.values - b.x.values).max()) <= 20 * sc.solver.coupling_tol_m
+
+
+def test_a_cycling_newton_solve_is_ended_as_stalled_and_a_slowly_converging_one_is_not(tmp_path):
+    """The residuals of C3's full Newton steps at the onset of sliding (data fidelity, t = 0.3125 s:
+    after one good iteration they cycle between four values for all 40 iterations, each with a fresh
+    Jacobian, 15 s of the run) end the solve STALL_ITERATIONS after the smallest one, as diverged and
+    ``stalled``; a damped solve that cuts its residual by 5 % per iteration is left to converge.
+    Broken once (the stall test removed): the cycle ran to its 40th iteration."""
+    from petsc4py import PETSc
+    from deapull.fem_solver import problem
+    p = _stepper(tmp_path, "gravity_m_s2=0", "dea.width_m=0.004", "mesh.n_length=4", scene="free_bending",
+                 setup=None).p
+    R = PETSc.SNES.ConvergedReason
+    cycle = [5.226e-4, 1.968e-4] + [1.891e-3, 9.356e-4, 1.430e-3, 1.978e-3] * 10
+    reasons = [p._converged(p.snes, it, (0.0, 0.0, f)) for it, f in enumerate(cycle)]
+    stop = next(i for i, r in enumerate(reasons) if r != R.ITERATING)
+    assert stop == 1 + problem.STALL_ITERATIONS and reasons[stop] == R.DIVERGED_MAX_IT and p.stalled
+    slow = [1e-3 * 0.95 ** k for k in range(41)]
+    reasons = [p._converged(p.snes, it, (0.0, 0.0, f)) for it, f in enumerate(slow)]
+    assert all(r == R.ITERATING for r in reasons[:-1]) and not p.stalled
+    assert reasons[-1] == R.DIVERGED_MAX_IT          # the scene's cap of 40 iterations still holds
+    assert p._converged(p.snes, 1, (0.0, 0.0, 1e-12)) == R.CONVERGED_FNORM_ABS
