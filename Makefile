@@ -107,7 +107,8 @@ endif
 
 experiments: setup ## the paper's six sets (f-coulomb, NN, LSTM; 3 repeats of seeds) and the held-out friction pairs (needs $(DATA)); writes bench/reference/surrogate_*.json
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments --models f-coulomb,nn,lstm --publish bench/reference
-	$(DEAPULL) experiments-protocols --held-out-pairs --data $(DATA) --out $(OUT)/pairs --models f-coulomb,nn --restarts 1 \
+	$(DEAPULL) experiments-protocols --held-out-pairs --data $(DATA) --out $(OUT)/pairs --models f-patch-lag,f-coulomb,nn \
+		--restarts f-patch-lag=3 \
 		--publish bench/reference
 
 experiments-protocols: setup ## train on ramps + excitation, test held-out protocols and coins (needs $(DATA), $(DATA)/excitation; resumes)
