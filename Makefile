@@ -65,14 +65,15 @@ ifeq ($(PRESET),fem)
 else
 	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
 		--val C$$((3 - s)) --model f-coulomb --epochs 300 --out $(MODELS)/fs$$s || exit 1; done
-	@test -f $(MODELS)/fa_push/model.json || $(MAKE) --no-print-directory sweep PROTOCOLS=push
-	@test -f $(MODELS)/fa_push/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
-		--model f-coulomb --epochs 300 --runs $(DATA)/push --out $(MODELS)/fa_push
+	$(FA_PUSH)
 	$(DEAPULL) control --preset $(PRESET) --data $(DATA) --out $(OUT)/control
 	cp $(OUT)/control/summary.json bench/reference/control_surrogate.json
 endif
 
 FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7
+FA_PUSH := @test -f $(MODELS)/fa_push/model.json || ($(MAKE) --no-print-directory sweep PROTOCOLS=push && \
+	$(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 --model f-coulomb --epochs 300 \
+	--runs $(DATA)/push --out $(MODELS)/fa_push)
 FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
 MPC_PYTORCH := $(OUT)/mpc_pytorch
@@ -82,7 +83,7 @@ BENCH_TARGET_MM ?= 0.8
 FEM_PLANTS ?= C3
 comma := ,
 BENCH ?= fem
-bench: setup ## speed, measured beside a baseline in the same run: BENCH=fem (C3 vs ABAQUS 130 s, the sweep), surrogate (1 s rollouts), control (MPC step vs mpc.pytorch and the paper's 1.2 s), control-fem (FEM_PLANTS), inference, blas
+bench: setup ## speed, measured beside a baseline in the same run: BENCH=fem (C3 vs ABAQUS 130 s, the sweep), surrogate (1 s rollouts), control (MPC step vs mpc.pytorch and the paper's 1.2 s), control-fem (FEM_PLANTS), inference (LM update speed, and the calibration of what the inference tells), blas
 ifeq ($(BENCH),fem)
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
 else ifeq ($(BENCH),surrogate)
@@ -99,6 +100,9 @@ else ifeq ($(BENCH),control-fem)
 else ifeq ($(BENCH),inference)
 	$(FA_MEM)
 	$(PY) bench/bench_inference.py --model $(MODELS)/fa_mem
+	$(FA_PUSH)
+	$(PY) bench/bench_inference.py --model $(MODELS)/fa_push --calibration 24 --noise 1e-6 \
+		--out bench/reference/inference_calibration.json
 else ifeq ($(BENCH),blas)
 	$(PY) bench/bench_blas.py --out $(OUT)/bench_blas $(if $(BLAS_SOLVE),--solve)
 else

@@ -13,26 +13,42 @@ the Python scan (what the f-memory f_a ran on before); ``engine="native"`` is
 ``native_mpc_memory.c`` (``deapull_memory_predict``, ``deapull_memory_scan``).
 
     python bench/bench_inference.py --model out/models/fa_mem        # make bench BENCH=inference
+
+``--calibration N`` measures instead what the inference can tell (issue goal G6): over N seeds of
+the noise, each seed's plant f_a with one of the design's coins C1..C8 in turn, the same push for ``--steps`` steps (default 2,500) with one Levenberg–Marquardt update
+every 10 steps (the MPC's ``infer_every``), under each of ``--priors``; then, per field, the
+median relative error of the estimate and how often the posterior's 68 % interval
+(:func:`~deapull.control.inference.posterior`, Laplace) covers the truth, and the relative error
+of the onset voltage (where the estimate's f_a first moves the coin 1 µm under the push, against
+the truth's).
+
+    python bench/bench_inference.py --model out/models/fa_push --calibration 20 --noise 1e-6
 """
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
 import torch
 
-from deapull.control.inference import COIN_PRIOR, InferenceConfig, OnlineInference
+from deapull.control.inference import COIN_PRIOR, PRIORS, InferenceConfig, OnlineInference, posterior
+from deapull.control.rollout_inference import RolloutInference
+from deapull.io import write_json
 from deapull.surrogate import store
 from deapull.surrogate.phi import Phi
 
 F64 = torch.float64
 DT = 1e-3
 TRUTH = Phi(mass_kg=1.36069e-3, mu_b=0.2, mu_t=0.55)
+#: the design's eight coins C1..C8 (m_c of 176.7 mm³ at 7.7 / 7.8 g/cm³, μ_t, μ_b): the calibration's truths
+COINS = [Phi(mass_kg=m, mu_b=mu_b, mu_t=mu_t) for mu_b in (0.2, 0.25) for mu_t in (0.5, 0.55)
+         for m in (1.36069e-3, 1.37836e-3)]
 
 
-def record(model, steps: int, noise: float, seed: int) -> list:
-    """(x̃, V) of the plant (``model`` with the coin TRUTH) under the push, noisy."""
+def record(model, steps: int, noise: float, seed: int, phi: Phi = TRUTH) -> list:
+    """(x̃, V) of the plant (``model`` with the coin ``phi``, default TRUTH) under the push, noisy."""
     m = model.double()
     rng = np.random.default_rng(seed)
     out, V = [(0.0, 0.0)], 0.0
@@ -41,10 +57,50 @@ def record(model, steps: int, noise: float, seed: int) -> list:
         for k in range(steps):
             if k % 200 < 160:
                 V = min(V + 0.4, 400.0)
-            s, _, memory = m.step(s, torch.tensor([[V, DT]], dtype=F64), memory, TRUTH.to(dtype=F64))
+            s, _, memory = m.step(s, torch.tensor([[V, DT]], dtype=F64), memory, phi.to(dtype=F64))
             out.append((float(s[0, 0]) + noise * float(rng.standard_normal()), V))
     model.float()
     return out
+
+
+def onset_V(model, phi: Phi, steps: int, moved_m: float = 1e-6) -> float:
+    """The push's voltage when ``model`` with the coin ``phi`` has first moved it ``moved_m``."""
+    for x, V in record(model, steps, 0.0, 0, phi):
+        if abs(x) > moved_m:
+            return V
+    return float("nan")
+
+
+def calibration(model, seeds: int, steps: int, noise: float, prior_name: str, loss: str = "rollout") -> dict:
+    """Estimates, 68 % intervals and onset voltages over ``seeds`` noise seeds (module docstring)."""
+    rows = []
+    for seed in range(seeds):
+        coin = COINS[seed % len(COINS)]
+        truth_onset = onset_V(model, coin, steps)
+        config = InferenceConfig(optimizer="lm", prior=PRIORS[prior_name], observation_std_m=max(noise, 1e-9),
+                                 motion_threshold_m=3 * noise, seed=seed)
+        if loss == "rollout":
+            inf = RolloutInference(model, config, DT, dv_max_V=5.0, v_max_V=400.0, every=10)
+        else:
+            inf = OnlineInference(model, config, DT)
+        for k, (x, V) in enumerate(record(model, steps, noise, seed, coin)):
+            inf.observe(x, V)
+            if k % 10 == 0:
+                inf.update(1)
+        post = posterior(inf, noise)
+        row = {"seed": seed, "onset_error": onset_V(model, inf.phi, steps) / truth_onset - 1}
+        for f, p in post.items():
+            truth = coin.value(f)
+            row[f] = {"error": p["estimate"] / truth - 1, "covered": p["lo"] <= truth <= p["hi"],
+                      "std_log": p["std_log"]}
+        rows.append(row)
+    fields = list(post)
+    return {"prior": prior_name, "loss": loss, "noise_m": noise, "steps": steps, "seeds": seeds,
+            "onset_abs_error_median": float(np.median([abs(r["onset_error"]) for r in rows])),
+            "onset_abs_error_max": float(np.max([abs(r["onset_error"]) for r in rows])),
+            **{f: {"abs_error_median": float(np.median([abs(r[f]["error"]) for r in rows])),
+                   "coverage_68": float(np.mean([r[f]["covered"] for r in rows])),
+                   "std_log_median": float(np.median([r[f]["std_log"] for r in rows]))} for f in fields}}
 
 
 def bench(model, rows: int, updates: int, noise: float, seed: int) -> dict:
@@ -76,9 +132,35 @@ def main() -> None:
     p.add_argument("--updates", type=int, default=10, help="updates timed per engine (default 10)")
     p.add_argument("--noise", type=float, default=1e-4, help="observation noise std (m; default 1e-4)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--calibration", type=int, default=0, help="seeds of the calibration study (0: time instead)")
+    p.add_argument("--steps", type=int, default=2500, help="steps of the calibration's push (2500)")
+    p.add_argument("--priors", default="family,coins", help="priors of the calibration (family,coins)")
+    p.add_argument("--out", default="", help="with --calibration: also write the results as JSON to this file "
+                   "(make bench BENCH=inference: bench/reference/inference_calibration.json)")
+    p.add_argument("--losses", default="rollout,step",
+                   help="the inference's losses in the calibration: rollout (output error), step (the paper's)")
     args = p.parse_args()
     torch.set_num_threads(1)
     model, _ = store.load(args.model)
+    if args.calibration:
+        print(f"{model.kind} f_a {args.model} as the plant, the coins C1..C8 in turn, push of {args.steps} steps, noise {args.noise:g} m, "
+              f"{args.calibration} seeds; goal (G6): 68 % intervals cover the truth 58-78 % of the seeds, "
+              f"mu_b and the onset within 10 %")
+        results = []
+        for loss, name in ((loss, name) for loss in args.losses.split(",") for name in args.priors.split(",")):
+            r = calibration(model, args.calibration, args.steps, args.noise, name, loss)
+            results.append(r)
+            print(f"loss {loss}, prior {name}: onset |error| median {100 * r['onset_abs_error_median']:.2f} %, "
+                  f"max {100 * r['onset_abs_error_max']:.2f} %")
+            for f in ("mass_kg", "mu_b", "mu_t"):
+                if f in r:
+                    print(f"  {f:8s} |error| median {100 * r[f]['abs_error_median']:6.2f} %, 68 % interval covers "
+                          f"{100 * r[f]['coverage_68']:5.1f} % of seeds, posterior std of log {r[f]['std_log_median']:.3g}")
+        if args.out:
+            write_json(args.out, {"schema": 1, "model": args.model, "kind": model.kind, "noise_m": args.noise,
+                                  "steps": args.steps, "seeds": args.calibration, "runs": results,
+                                  "command": "python bench/bench_inference.py " + " ".join(sys.argv[1:])}, indent=2)
+        return
     print(f"{model.kind} f_a {args.model}: LM updates (batch 256, prior coins), noise {args.noise:g} m, one thread")
     print(f"{'rows':>6} {'torch ms/update':>16} {'native ms/update':>17} {'ratio':>7} "
           f"{'torch ms/obs':>13} {'native ms/obs':>14} {'ratio':>7} {'estimates apart':>16}")

@@ -36,8 +36,10 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import statistics
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from deapull.control import native
@@ -61,6 +63,14 @@ BOUNDS = {"mass_kg": (1e-6, 0.1), "mu_b": (1e-2, 2.0), "mu_t": (1e-2, 2.0), "v_t
 #: inference a MAP estimate that stays physical where the data do not inform (noise, model
 #: mismatch); the paper's Algorithm 2 has none (the default).
 COIN_PRIOR = {"mass_kg": (1.37e-3, math.log(2.0)), "mu_b": (0.22, math.log(2.0)), "mu_t": (0.52, math.log(2.0))}
+#: the coin family's own spread as a log-normal prior (``--phi-prior family``): each field's median at
+#: the geometric middle of the design's coins (m_c 1.36–1.38 g, μ_b 0.20–0.25, μ_t 0.50–0.55) and its
+#: log std half their log range, so that the family's extremes lie at ±1 std
+FAMILY_PRIOR = {f: (math.sqrt(lo * hi), 0.5 * math.log(hi / lo))
+                for f, (lo, hi) in {"mass_kg": (1.36069e-3, 1.37836e-3), "mu_b": (0.20, 0.25),
+                                    "mu_t": (0.50, 0.55)}.items()}
+#: the named priors of ``deapull control --phi-prior``
+PRIORS = {"none": None, "coins": COIN_PRIOR, "family": FAMILY_PRIOR}
 
 
 @dataclass(frozen=True)
@@ -498,6 +508,11 @@ class OnlineInference:
             return 0.0
         return float((self.predictor.predict(columns, self.phi) - target).pow(2).mean().sqrt())
 
+    def sensitivity(self) -> torch.Tensor:
+        """∂x̂_{t+1}/∂log φ (N × p) of the buffered one-step predictions at the current estimate."""
+        with torch.enable_grad():
+            return _sensitivity(self, self.phi)[0].detach()
+
     def crlb(self, noise_std_m: float) -> dict:
         """Each inferred field's Cramér–Rao bound on its relative error (:func:`identifiability`)."""
         with torch.enable_grad():
@@ -527,6 +542,49 @@ class OnlineInference:
         return record
 
 
+def posterior(inference, noise_std_m: float, level: float = 0.68) -> dict:
+    """The Laplace approximation of the posterior of the inferred fields at the current estimate
+    of ``inference`` (:class:`OnlineInference`, or the output-error
+    :class:`~deapull.control.rollout_inference.RolloutInference`).
+
+    In log φ the posterior's covariance is (SᵀS/σ̂² + P)⁻¹: S = ∂x̂/∂log φ over everything
+    observed (one-step predictions, or the episode's rollout), σ̂ the larger of ``noise_std_m``
+    and the RMS misfit at the estimate (the model's own error counts as noise, as in the MAP's
+    weighting), P the prior's precision (diag 1/std², 0 for a field without one). Returns, per
+    field, the ``estimate``, ``std_log`` (the posterior std of log φ) and the central ``level``
+    interval (``lo``, ``hi``: estimate × exp(∓ z std_log), z the normal quantile); a field that
+    neither the data nor the prior determine gets std_log = inf.
+    """
+    fields = tuple(inference.fields)
+    sigma = max(noise_std_m, inference.misfit_m())
+    S = np.asarray(inference.sensitivity(), dtype=np.float64)
+    precision = S.T @ S / sigma ** 2
+    prior = inference.config.prior or {}
+    for i, f in enumerate(fields):
+        if f in prior:
+            precision[i, i] += 1.0 / prior[f][1] ** 2
+    try:
+        std = np.sqrt(np.clip(np.diag(np.linalg.inv(precision)), 0, None)).tolist()
+    except np.linalg.LinAlgError:
+        std = [math.inf] * len(fields)
+    z = statistics.NormalDist().inv_cdf(0.5 + level / 2)
+    estimate = inference.estimate()
+    return {f: {"estimate": estimate[f], "std_log": sd, "lo": estimate[f] * math.exp(-z * sd),
+                "hi": estimate[f] * math.exp(z * sd)} for f, sd in zip(fields, std)}
+
+
+def _sensitivity(inference: OnlineInference, base: Phi):
+    """(S, x̂_{t+1}, columns): ∂x̂_{t+1}/∂log φ (N × p) over the buffer at ``base``."""
+    fields = inference.fields
+    columns, _ = inference.buffer.batch(torch.arange(len(inference.buffer)))
+    n = len(inference.buffer)
+    logs = {f: torch.log(torch.full((n,), base.value(f), dtype=torch.float64)).requires_grad_(True) for f in fields}
+    values = {f: (logs[f].exp() if f in logs else getattr(base, f)) for f in FIELDS if getattr(base, f) is not None}
+    x_next = inference.predictor.predict(columns, Phi(**values))
+    grads = torch.autograd.grad(x_next.sum(), [logs[f] for f in fields])
+    return torch.stack(grads, -1), x_next, columns
+
+
 def identifiability(inference: OnlineInference, phi: Phi | None = None, noise_std_m: float = 1e-6) -> dict:
     """What the buffered transitions say about each inferred field, at ``phi`` (default: the
     current estimate).
@@ -547,13 +605,8 @@ def identifiability(inference: OnlineInference, phi: Phi | None = None, noise_st
     """
     fields = inference.fields
     base = inference.phi if phi is None else phi.to(dtype=torch.float64)
-    columns, target = inference.buffer.batch(torch.arange(len(inference.buffer)))
-    n = target.shape[0]
-    logs = {f: torch.log(torch.full((n,), base.value(f), dtype=torch.float64)).requires_grad_(True) for f in fields}
-    values = {f: (logs[f].exp() if f in logs else getattr(base, f)) for f in FIELDS if getattr(base, f) is not None}
-    x_next = inference.predictor.predict(columns, Phi(**values))
-    grads = torch.autograd.grad(x_next.sum(), [logs[f] for f in fields])
-    S = torch.stack(grads, -1)
+    S, x_next, columns = _sensitivity(inference, base)
+    n = S.shape[0]
     F = S.T @ S / noise_std_m ** 2
     eig = torch.linalg.eigvalsh(F)
     try:

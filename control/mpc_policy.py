@@ -406,13 +406,16 @@ class MPCPolicy(Policy):
         return max(self.spec.noise_std_m, self.inference.misfit_m(), 1e-9)
 
     def _planning_phi(self) -> Phi:
-        """The φ the plan uses. Without a prior, the inference's estimate (the paper). With one,
-        each field the data identify (Cramér–Rao bound below ``identified_crlb``) takes the
-        estimate and every other field stays at the prior's median: noise that the data
-        cannot see through does not move the model (``crlb_every`` sets how often it is
-        judged; before the first judgement every field is at the prior)."""
+        """The φ the plan uses. Without a prior, the inference's estimate (the paper). With one
+        and the output-error loss (``infer_loss = "rollout"``), the MAP estimate: the prior holds
+        what the data leave open, and the data move what they determine (the onset), so no gate
+        is needed (docs/control.md, "What the data can tell"). With one and the one-step loss,
+        whose estimate is biased under noise (errors in variables), each field the data identify
+        (Cramér–Rao bound below ``identified_crlb``) takes the estimate and every other field
+        stays at the prior's median (``crlb_every`` sets how often it is judged; before the first
+        judgement every field is at the prior)."""
         prior = self.inference.config.prior
-        if not prior:
+        if not prior or self.config.infer_loss == "rollout":
             return self.inference.phi
         estimate = self.inference.estimate()
         values = {}

@@ -222,6 +222,10 @@ class RolloutInference:
                 break
         return loss / max(self.transitions, 1)
 
+    def sensitivity(self) -> np.ndarray:
+        """∂x̂_t/∂log φ (t × p) of the episode's rollout at the current estimate (forward differences)."""
+        return self._sensitivity(self.log_phi, self.rollout(self.log_phi))
+
     def crlb(self, noise_std_m: float) -> dict:
         """The Cramér–Rao bound on each inferred field's relative error from the episode's
         rollout: S = ∂x̂_t/∂log φ (forward differences), F = SᵀS/σ² (inf where F is singular)."""

@@ -239,7 +239,7 @@ def register(sub) -> None:
     p.add_argument("--phi-prior", default="none",
                    help="the MPC's online inference: none (maximum likelihood, the paper's Algorithm 2; default) "
                         "or coins (MAP with a log-normal prior over the design card's coin family, a factor 2 "
-                        "wide: control.inference.COIN_PRIOR)")
+                        "wide: control.inference.COIN_PRIOR) or family (the design's coins at ±1 std: FAMILY_PRIOR)")
     p.add_argument("--infer-optimizer", default="lm", choices=("lm", "adam"),
                    help="the online inference's optimiser: lm (Levenberg-Marquardt, default) or adam (the paper's "
                         "Adam, Algorithm 2)")
@@ -329,7 +329,9 @@ def register_dagger(sub) -> None:
     p.add_argument("--model-kind", default=None,
                    help="f_a's kind, retrained every round: f-coulomb or f-memory (default: --mpc-model's kind, "
                         "else f-coulomb)")
-    p.add_argument("--phi-prior", default="coins", help="the MPC's inference prior: none or coins (default)")
+    p.add_argument("--phi-prior", default="coins",
+                   help="the MPC's inference prior: none, coins (default; a factor 2 around the coin family) or "
+                        "family (the design's coins at ±1 std)")
     p.add_argument("--mpc-no-infer", action="store_true",
                    help="plan with the coin prior's median, no online inference")
     p.add_argument("--mpc-standoff", type=float, default=0.0, help="the MPC's stand-off (stds; default 0)")

@@ -193,6 +193,23 @@ def control_goals(result: dict) -> str:
 
 
 #: block name -> (results file, renderer)
+def inference_calibration(result: dict) -> str:
+    """What the online inference tells (G6): per loss and prior, the onset's and each field's error
+    and how often the 68 % interval covers the truth, over the seeds and the coins C1..C8."""
+    rows = ["| loss | prior | onset error, median / max [%] | μ_b error [%] | μ_t error [%] | m_c error [%] "
+            "| 68 % interval covers μ_b / μ_t / m_c [%] |", "|---|---|---|---|---|---|---|"]
+    for r in result["runs"]:
+        rows.append(f"| {r['loss']} | {r['prior']} | {100 * r['onset_abs_error_median']:.2f} / "
+                    f"{100 * r['onset_abs_error_max']:.2f} | {100 * r['mu_b']['abs_error_median']:.1f} | "
+                    f"{100 * r['mu_t']['abs_error_median']:.1f} | {100 * r['mass_kg']['abs_error_median']:.2f} | "
+                    f"{100 * r['mu_b']['coverage_68']:.0f} / {100 * r['mu_t']['coverage_68']:.0f} / "
+                    f"{100 * r['mass_kg']['coverage_68']:.0f} |")
+    rows += ["", f"{result['kind']} f_a as its own plant, {result['seeds']} seeds over the coins C1..C8, noise "
+             f"{result['noise_m']:g} m, {result['steps']} steps of the push (goal: μ_b and the onset within 10 %, "
+             f"the 68 % interval covering 58–78 %)."]
+    return "\n".join(rows)
+
+
 BLOCKS = {
     "contact_reference": ("bench/reference/contact_reference.json", contact_reference),
     "headline": ("bench/reference/contact_reference.json", headline),
@@ -200,6 +217,7 @@ BLOCKS = {
     "surrogate_pairs": ("bench/reference/surrogate_pairs.json", surrogate_pairs),
     "surrogate_headline": ("bench/reference/surrogate_experiments.json", surrogate_headline),
     "control_goals": ("bench/reference/control_surrogate.json", control_goals),
+    "inference_calibration": ("bench/reference/inference_calibration.json", inference_calibration),
 }
 
 _BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(\n<!-- /results:(?P=name) -->)", re.S)
