@@ -23,8 +23,8 @@ help: ## list the targets
 setup: ## install apt packages, the venv, torch (CPU) and the project (idempotent)
 	@bash scripts/setup.sh
 
-demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3 (the data fidelity), dataset and plot in out/demo
-	$(DEAPULL) solve --scene coin_pull --out $(OUT)/demo
+demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3 (the data fidelity, one mesh over NP ranks), dataset and plot in out/demo
+	$(MPIRUN) $(DEAPULL) solve --scene coin_pull --out $(OUT)/demo
 	$(DEAPULL) plot $(OUT)/demo/C3.nc --out $(OUT)/demo/C3.png
 
 test: setup ## run the test suite (serial and mpirun -n 2 checks)
