@@ -219,7 +219,7 @@ def test_an_unreachable_fem_plant_is_reported_and_the_others_run(tmp_path, sweep
     runs; with every plant beyond reach the run still exits 2. Broken once: the unreachable plant
     kept in the loop (its mesh was made and its episode run)."""
     out = tmp_path / "out"
-    argv = ["control", "--policy", "heur", "--plant", "fem:C3,fem:C5", "--data", str(sweep_dir), "--target-mm",
+    argv = ["control", "--policy", "heur", "--plant", "fem:C3,fem:C5", "--episodes", "1", "--data", str(sweep_dir), "--target-mm",
             "-0.6", "--max-steps", "3", "--hold", "0", "--unreachable", "report", "--out", str(out), "--no-progress",
             *[a for s in TINY_MESH for a in ("--set", s)]]
     assert main(argv) == 0

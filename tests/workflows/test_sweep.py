@@ -5,7 +5,7 @@ import pytest
 from deapull import dataset, protocol, scene as scenes
 from deapull.errors import InputError
 from deapull.workflows.sweep import PROTOCOL_SETS, format_table, sweep_cases
-from tests.conftest import TINY_MESH, mpirun
+from tests.conftest import SHARP, TINY_MESH, mpirun
 
 pytestmark = pytest.mark.fem
 
@@ -60,13 +60,14 @@ def test_the_closing_table_names_the_cases_whose_contact_was_thin():
 def test_excitation_sweep_under_mpi_writes_and_resumes(tmp_path):
     args = ["-m", "deapull.workflows", "sweep", "--scene", "coin_pull", "--setups", "C1", "--protocols",
             "excitation", "--out", str(tmp_path)]
-    for o in (*TINY_MESH, *SHORT):
+    for o in (*SHARP, *TINY_MESH, *SHORT):      # the sweep's machinery on the fast mesh
         args += ["--set", o]
     first = mpirun(2, *args)
     assert first.returncode == 0, first.stderr[-3000:]
     for name in PROTOCOL_SETS["excitation"]:
         run = dataset.read(tmp_path / f"C1_{name}.nc", variables=("t", "V"))
-        sc = scenes.load("coin_pull", setup="C1", overrides=(*PROTOCOL_SETS["excitation"][name], *TINY_MESH, *SHORT))
+        sc = scenes.load("coin_pull", setup="C1", overrides=(*PROTOCOL_SETS["excitation"][name], *SHARP, *TINY_MESH,
+                                                              *SHORT))
         expected = [protocol.from_load(sc.load).voltage(t) for t in run.columns["t"]]
         assert run.columns["V"].tolist() == pytest.approx(expected, abs=1e-9), name
         assert run.attrs["load_protocol"] == sc.load.protocol
