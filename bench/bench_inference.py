@@ -1,5 +1,5 @@
-"""One online-inference update on an f-memory f_a, compiled against torch in the same run
-(issue 24, item 4): ms per Levenberg–Marquardt update and per observed step, and how far the
+"""One online-inference update on an f-memory f_a, compiled against torch in the same run: ms per
+Levenberg–Marquardt update and per observed step, and how far the
 two estimates are apart.
 
 The inference (:class:`~deapull.control.inference.OnlineInference`, ``--infer-optimizer lm``,
@@ -14,9 +14,10 @@ the Python scan (what the f-memory f_a ran on before); ``engine="native"`` is
 
     python bench/bench_inference.py --model out/models/fa_mem        # make bench BENCH=inference
 
-``--calibration N`` measures instead what the inference can tell (issue goal G6): over N seeds of
-the noise, each seed's plant f_a with one of the design's coins C1..C8 in turn, the same push for ``--steps`` steps (default 2,500) with one Levenberg–Marquardt update
-every 10 steps (the MPC's ``infer_every``), under each of ``--priors``; then, per field, the
+``--calibration N`` measures instead what the inference can tell (goal G6): over N seeds of the
+noise, each seed's plant f_a with one of the design's coins C1..C8 in turn (:func:`design_coins`),
+the same push for ``--steps`` steps (default 2,500) with one Levenberg–Marquardt update every 10
+steps (the MPC's ``infer_every``), under each of ``--priors`` and ``--losses``; then, per field, the
 median relative error of the estimate and how often the posterior's 68 % interval
 (:func:`~deapull.control.inference.posterior`, Laplace) covers the truth, and the relative error
 of the onset voltage (where the estimate's f_a first moves the coin 1 µm under the push, against
@@ -33,7 +34,8 @@ import time
 import numpy as np
 import torch
 
-from deapull.control.inference import COIN_PRIOR, PRIORS, InferenceConfig, OnlineInference, posterior
+from deapull.control.inference import (COIN_PRIOR, InferenceConfig, OnlineInference, design_coins, named_prior,
+                                      posterior)
 from deapull.control.rollout_inference import RolloutInference
 from deapull.io import write_json
 from deapull.surrogate import store
@@ -42,9 +44,6 @@ from deapull.surrogate.phi import Phi
 F64 = torch.float64
 DT = 1e-3
 TRUTH = Phi(mass_kg=1.36069e-3, mu_b=0.2, mu_t=0.55)
-#: the design's eight coins C1..C8 (m_c of 176.7 mm³ at 7.7 / 7.8 g/cm³, μ_t, μ_b): the calibration's truths
-COINS = [Phi(mass_kg=m, mu_b=mu_b, mu_t=mu_t) for mu_b in (0.2, 0.25) for mu_t in (0.5, 0.55)
-         for m in (1.36069e-3, 1.37836e-3)]
 
 
 def record(model, steps: int, noise: float, seed: int, phi: Phi = TRUTH) -> list:
@@ -73,11 +72,11 @@ def onset_V(model, phi: Phi, steps: int, moved_m: float = 1e-6) -> float:
 
 def calibration(model, seeds: int, steps: int, noise: float, prior_name: str, loss: str = "rollout") -> dict:
     """Estimates, 68 % intervals and onset voltages over ``seeds`` noise seeds (module docstring)."""
-    rows = []
+    rows, coins = [], list(design_coins().values())
     for seed in range(seeds):
-        coin = COINS[seed % len(COINS)]
+        coin = coins[seed % len(coins)]
         truth_onset = onset_V(model, coin, steps)
-        config = InferenceConfig(optimizer="lm", prior=PRIORS[prior_name], observation_std_m=max(noise, 1e-9),
+        config = InferenceConfig(optimizer="lm", prior=named_prior(prior_name), observation_std_m=max(noise, 1e-9),
                                  motion_threshold_m=3 * noise, seed=seed)
         if loss == "rollout":
             inf = RolloutInference(model, config, DT, dv_max_V=5.0, v_max_V=400.0, every=10)
@@ -143,8 +142,8 @@ def main() -> None:
     torch.set_num_threads(1)
     model, _ = store.load(args.model)
     if args.calibration:
-        print(f"{model.kind} f_a {args.model} as the plant, the coins C1..C8 in turn, push of {args.steps} steps, noise {args.noise:g} m, "
-              f"{args.calibration} seeds; goal (G6): 68 % intervals cover the truth 58-78 % of the seeds, "
+        print(f"{model.kind} f_a {args.model} as the plant, the coins C1..C8 in turn, push of {args.steps} steps, "
+              f"noise {args.noise:g} m, {args.calibration} seeds; goal (G6): 68 % intervals cover the truth 58-78 % of the seeds, "
               f"mu_b and the onset within 10 %")
         results = []
         for loss, name in ((loss, name) for loss in args.losses.split(",") for name in args.priors.split(",")):
@@ -155,7 +154,8 @@ def main() -> None:
             for f in ("mass_kg", "mu_b", "mu_t"):
                 if f in r:
                     print(f"  {f:8s} |error| median {100 * r[f]['abs_error_median']:6.2f} %, 68 % interval covers "
-                          f"{100 * r[f]['coverage_68']:5.1f} % of seeds, posterior std of log {r[f]['std_log_median']:.3g}")
+                          f"{100 * r[f]['coverage_68']:5.1f} % of seeds, posterior std of log "
+                          f"{r[f]['std_log_median']:.3g}")
         if args.out:
             write_json(args.out, {"schema": 1, "model": args.model, "kind": model.kind, "noise_m": args.noise,
                                   "steps": args.steps, "seeds": args.calibration, "runs": results,

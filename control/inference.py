@@ -34,6 +34,7 @@ noise σ, which give the Cramér–Rao bound on each parameter's relative error.
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import math
 import statistics
@@ -42,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from deapull import scene as scenes
 from deapull.control import native
 from deapull.errors import InputError
 from deapull.surrogate.phi import FIELDS, Phi
@@ -63,14 +65,42 @@ BOUNDS = {"mass_kg": (1e-6, 0.1), "mu_b": (1e-2, 2.0), "mu_t": (1e-2, 2.0), "v_t
 #: inference a MAP estimate that stays physical where the data do not inform (noise, model
 #: mismatch); the paper's Algorithm 2 has none (the default).
 COIN_PRIOR = {"mass_kg": (1.37e-3, math.log(2.0)), "mu_b": (0.22, math.log(2.0)), "mu_t": (0.52, math.log(2.0))}
-#: the coin family's own spread as a log-normal prior (``--phi-prior family``): each field's median at
-#: the geometric middle of the design's coins (m_c 1.36–1.38 g, μ_b 0.20–0.25, μ_t 0.50–0.55) and its
-#: log std half their log range, so that the family's extremes lie at ±1 std
-FAMILY_PRIOR = {f: (math.sqrt(lo * hi), 0.5 * math.log(hi / lo))
-                for f, (lo, hi) in {"mass_kg": (1.36069e-3, 1.37836e-3), "mu_b": (0.20, 0.25),
-                                    "mu_t": (0.50, 0.55)}.items()}
-#: the named priors of ``deapull control --phi-prior``
-PRIORS = {"none": None, "coins": COIN_PRIOR, "family": FAMILY_PRIOR}
+#: the named priors of ``deapull control --phi-prior`` (:func:`named_prior`)
+PRIOR_NAMES = ("none", "coins", "family")
+
+
+@functools.lru_cache(maxsize=None)
+def design_coins(scene: str = "coin_pull") -> dict[str, Phi]:
+    """The coins of the shipped scene's setups (C1..C8), as the FEM makes them: m_c = the coin's
+    density × its cylinder's volume π r² h (the FEM's coin mesh has that volume), μ_b and μ_t."""
+    coins = {}
+    for setup in scenes.setups_of(scene):
+        c = scenes.load(scene, setup=setup).coin
+        coins[setup] = Phi(mass_kg=c.density_kg_m3 * math.pi * c.radius_m ** 2 * c.height_m, mu_b=c.mu_b,
+                           mu_t=c.mu_t)
+    return coins
+
+
+def family_prior(scene: str = "coin_pull") -> dict:
+    """The coin family's own spread as a log-normal prior (``--phi-prior family``): each field's
+    median at the geometric middle of :func:`design_coins` (m_c 1.36–1.38 g, μ_b 0.20–0.25, μ_t
+    0.50–0.55) and its log std half their log range, so that the family's extremes lie at ±1 std."""
+    prior = {}
+    for f in ("mass_kg", "mu_b", "mu_t"):
+        values = [coin.value(f) for coin in design_coins(scene).values()]
+        lo, hi = min(values), max(values)
+        prior[f] = (math.sqrt(lo * hi), 0.5 * math.log(hi / lo))
+    return prior
+
+
+def named_prior(name: str) -> dict | None:
+    """The prior of :data:`PRIOR_NAMES`: none (maximum likelihood), coins (:data:`COIN_PRIOR`) or
+    family (:func:`family_prior`)."""
+    if name not in PRIOR_NAMES:
+        raise InputError(f"prior {name!r}: choose one of {', '.join(PRIOR_NAMES)}")
+    if name == "family":
+        return family_prior()
+    return COIN_PRIOR if name == "coins" else None
 
 
 @dataclass(frozen=True)

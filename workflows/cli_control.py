@@ -239,7 +239,7 @@ def register(sub) -> None:
     p.add_argument("--phi-prior", default="none",
                    help="the MPC's online inference: none (maximum likelihood, the paper's Algorithm 2; default) "
                         "or coins (MAP with a log-normal prior over the design card's coin family, a factor 2 "
-                        "wide: control.inference.COIN_PRIOR) or family (the design's coins at ±1 std: FAMILY_PRIOR)")
+                        "wide: control.inference.COIN_PRIOR) or family (the design's coins at ±1 std: family_prior())")
     p.add_argument("--infer-optimizer", default="lm", choices=("lm", "adam"),
                    help="the online inference's optimiser: lm (Levenberg-Marquardt, default) or adam (the paper's "
                         "Adam, Algorithm 2)")

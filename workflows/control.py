@@ -41,7 +41,7 @@ from deapull import provenance
 from deapull import scene as scenes
 from deapull.control.dynamics import COSTS
 from deapull.control.harness import PHI_FIELDS, Bench, Episode, Task, run_episode
-from deapull.control.inference import COIN_PRIOR, ENGINES as INFER_ENGINES, PRIORS, InferenceConfig
+from deapull.control.inference import COIN_PRIOR, ENGINES as INFER_ENGINES, PRIOR_NAMES, InferenceConfig, named_prior
 from deapull.control.mpc_policy import INFER_LOSSES, MPCConfig
 from deapull.control.policies import SAC_FILE
 from deapull.surrogate import store
@@ -57,8 +57,8 @@ log = logging.getLogger(__name__)
 POLICIES = ("mpc", "sac", "pd", "heur", "mpc+kf", "pd+kf")
 PLANT_KINDS = ("surrogate", "fem")
 #: the choices of `--phi-prior`: maximum likelihood (the paper), control.inference.COIN_PRIOR (a factor 2
-#: around the family) or FAMILY_PRIOR (the design's coins at ±1 std)
-PHI_PRIORS = tuple(PRIORS)
+#: around the family) or family_prior() (the design's coins at ±1 std)
+PHI_PRIORS = PRIOR_NAMES
 COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max_V", "step_limit", "hold_steps",
            "setpoints_mm", "setpoints_reached", "setpoints_settled", "iterations_per_setpoint",
            "iterations_to_target", "reached", "settled", "overshoot_m", "hold_inside_fraction",
@@ -404,7 +404,7 @@ def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
     """The MPC's settings (:mod:`deapull.control.mpc_policy`) with f_a from ``--mpc-model``: φ
     inferred online, or given (``--mpc-oracle``: the plant's true φ; ``--mpc-no-infer``: the
     prior's median); ``filter="kf"``: from a Kalman estimate of the position (``mpc+kf``)."""
-    prior = PRIORS[config.phi_prior]
+    prior = named_prior(config.phi_prior)
     # mpc: offset-free (gain-error filter, hold inside the window); mpc+kf: the earlier MPC on a
     # position-only Kalman estimate, kept to measure what the offset-free parts add
     plain = filter == "kf"
