@@ -31,7 +31,7 @@ PARALLEL_FACTOR_PACKAGES = ("mumps",)
 #: a Newton solve whose residual has not fallen below STALL_FACTOR x its smallest value for
 #: STALL_ITERATIONS iterations has stalled and is ended as diverged (:meth:`DEAProblem._converged`):
 #: at a friction reversal full Newton steps cycle through 4 residuals for all 40 iterations, each with a
-#: fresh Jacobian (tests/fem_solver/test_stepping.py counts the iterations a cycling step saves)
+#: fresh Jacobian (tests/fem_solver/test_stepping.py feeds that measured cycle to the test)
 STALL_FACTOR = 0.99
 STALL_ITERATIONS = 8
 #: MUMPS's workspace relaxation ICNTL(14), % over its analysis estimate (its default: 20). Under
@@ -425,7 +425,8 @@ class DEAProblem:
         ok = reason > 0 and finite
         name = SNES_REASONS.get(reason, str(reason)) if finite else "DIVERGED_FNORM_NAN"
         if self.stalled and reason <= 0:
-            name = f"DIVERGED_STALLED (no residual below {STALL_FACTOR:g} x the smallest in {STALL_ITERATIONS} iterations)"
+            name = (f"DIVERGED_STALLED (no residual below {STALL_FACTOR:g} x the smallest in {STALL_ITERATIONS} "
+                    "iterations)")
         if name == "DIVERGED_LINEAR_SOLVE":
             name += self._factor_error()
         return SolveResult(ok, name, self.snes.getIterationNumber(), float(rnorm))
