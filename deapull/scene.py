@@ -711,6 +711,18 @@ def from_resolved_toml(text: str) -> Scene:
 
 #: the sections that say how finely a scene is solved (its fidelity), not what it holds
 DISCRETISATION = ("mesh", "solver", "contact", "time")
+#: keys that choose the path to the solution, not the solution (to the Newton tolerance): a dataset
+#: made with other values is the same fidelity
+SOLVER_PATH = (("solver", "jacobian_reuse_ratio"), ("solver", "linear_solver"))
+
+
+def _fidelity_dict(scene_dict: dict) -> dict:
+    """``scene_dict`` without the :data:`SOLVER_PATH` keys."""
+    out = dict(scene_dict)
+    for section, key in SOLVER_PATH:
+        if isinstance(out.get(section), dict):
+            out[section] = {k: v for k, v in out[section].items() if k != key}
+    return out
 
 
 def fidelity_of_resolved(text: str, setup: str | None, scene_file: str | Path | None = None) -> tuple[str | None, str]:
@@ -730,14 +742,15 @@ def fidelity_of_resolved(text: str, setup: str | None, scene_file: str | Path | 
         made = from_resolved_toml(text)
     except (tomllib.TOMLDecodeError, InputError):
         return None, ""
-    made_dict = made.to_dict()
+    made_dict = _fidelity_dict(made.to_dict())
     fingerprint = hashlib.sha256(json.dumps({k: made_dict.get(k) for k in DISCRETISATION}, sort_keys=True,
                                             default=str).encode()).hexdigest()[:12]
     source = scene_file or made.scene.name
     try:
         names = ("", *fidelities_of(source))
         for name in names:
-            if load(source, setup=setup or None, overrides=fidelity_overrides(source, name)).to_dict() == made_dict:
+            if _fidelity_dict(load(source, setup=setup or None,
+                                   overrides=fidelity_overrides(source, name)).to_dict()) == made_dict:
                 return name, fingerprint
     except InputError:
         pass

@@ -310,7 +310,7 @@ class DEAProblem:
             # read when the factor matrix is made (the first solve), so it stays in the database
             opts[prefix + "mat_mumps_icntl_14"] = MUMPS_WORKSPACE_RELAXATION
         self.snes = snes
-        self._jacobian_ready, self._last_fnorm = False, 0.0
+        self._jacobian_ready, self._last_fnorm, self._placing = False, 0.0, False
         self._first_fnorm, self._best_fnorm, self._best_it, self.stalled = 0.0, 0.0, 0, False
         self.jacobian_assemblies = self.jacobian_reuses = 0
 
@@ -334,7 +334,7 @@ class DEAProblem:
             return R.CONVERGED_FNORM_RELATIVE
         if fnorm < STALL_FACTOR * self._best_fnorm:
             self._best_fnorm, self._best_it = fnorm, it
-        elif it - self._best_it >= STALL_ITERATIONS:
+        elif it - self._best_it >= STALL_ITERATIONS and not self._placing:
             self.stalled = True
             return R.DIVERGED_MAX_IT
         if it >= max_it:
@@ -359,6 +359,17 @@ class DEAProblem:
             yield
         finally:
             self.snes.setTolerances(max_it=self.scene.solver.newton_max_it)
+
+    @contextlib.contextmanager
+    def placement_newton(self):
+        """Newton as the placement's continuation needs it inside the block: a fresh Jacobian at every
+        iteration (``solver.jacobian_reuse_ratio`` outside) and no stall test (the continuation caps
+        the iterations and cuts its step; first touch wanders before it converges)."""
+        self._placing = True
+        try:
+            yield
+        finally:
+            self._placing = False
 
     def factor_package(self) -> str:
         """``solver.linear_solver``, or mumps when the mesh is split over ranks and the
@@ -386,7 +397,7 @@ class DEAProblem:
         solve, triggers a fresh Jacobian.
         """
         it, fnorm = snes.getIterationNumber(), snes.getFunctionNorm()
-        r = self.scene.solver.jacobian_reuse_ratio
+        r = 0.0 if self._placing else self.scene.solver.jacobian_reuse_ratio
         reuse = r > 0 and self._jacobian_ready and (it == 0 or fnorm <= r * self._last_fnorm)
         self._last_fnorm = fnorm
         if reuse:

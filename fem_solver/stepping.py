@@ -48,6 +48,7 @@ taken from the clamp reaction, not from the contact integral the coupling used
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time as _time
@@ -168,6 +169,10 @@ class Stepper:
     #: extrapolate the sliding coin's velocity by its last acceleration in the coupling's first guess
     #: (tests/fem_solver/test_stepping.py counts the coupling solves it saves)
     PREDICT_ACCELERATION = True
+    #: place the DEA with :meth:`DEAProblem.placement_newton` (a fresh Jacobian at every iteration, no
+    #: stall test): with the Jacobian kept at solver.jacobian_reuse_ratio = 0.6 the penalty continuation
+    #: failed (tests/fem_solver/test_stepping.py checks a placement at that ratio)
+    PLACEMENT_FULL_NEWTON = True
 
     def __init__(self, problem, mass_kg=None, progress: bool = True, on_step=None):
         self.p, self.scene = problem, problem.scene
@@ -505,7 +510,7 @@ class Stepper:
 
     def _continuation(self, what: str, solve_at, V: float):
         """Solve ``solve_at(scale)`` for scale 0 → 1 in growing steps (the first
-        ``time.placement_first_step``), cut by 4 on failure.
+        ``time.placement_first_step``), cut by 4 on failure, with :meth:`DEAProblem.placement_newton`.
 
         Returns (Newton iterations, coupling iterations of the last solve, its forces);
         raises :class:`SolveFailed` once a step falls below :data:`PLACEMENT_MIN_STEP`.
@@ -514,7 +519,8 @@ class Stepper:
         good = self.p.w.x.array.copy()
         while done < 1.0:
             scale = min(1.0, done + step)
-            with self.p.newton_max_it(min(PLACEMENT_MAX_IT, self.scene.solver.newton_max_it)):
+            newton = self.p.placement_newton() if self.PLACEMENT_FULL_NEWTON else contextlib.nullcontext()
+            with self.p.newton_max_it(min(PLACEMENT_MAX_IT, self.scene.solver.newton_max_it)), newton:
                 ok, reason, k_its, cits, coin, forces = solve_at(scale)
             its += k_its
             if ok:

@@ -49,8 +49,9 @@ def c3_run(tmp_path_factory):
     sc = scenes.load("coin_pull", setup="C3", overrides=C3_TEST)
     # the coupling's first guess as the fixture's code had it (no acceleration term): the records
     # then agree to round-off; test_stepping.py measures what the acceleration changes
-    Stepper.PREDICT_ACCELERATION = False
+    # and its placement on the scene's Newton
+    Stepper.PREDICT_ACCELERATION = Stepper.PLACEMENT_FULL_NEWTON = False
     try:
         return sc, solve_scene(sc, tmp_path_factory.mktemp("c3"), progress=False)
     finally:
-        Stepper.PREDICT_ACCELERATION = True
+        Stepper.PREDICT_ACCELERATION = Stepper.PLACEMENT_FULL_NEWTON = True

@@ -414,3 +414,27 @@ def test_a_cycling_newton_solve_is_ended_as_stalled_and_a_slowly_converging_one_
     assert all(r == R.ITERATING for r in reasons[:-1]) and not p.stalled
     assert reasons[-1] == R.DIVERGED_MAX_IT          # the scene's cap of 40 iterations still holds
     assert p._converged(p.snes, 1, (0.0, 0.0, 1e-12)) == R.CONVERGED_FNORM_ABS
+
+
+@pytest.mark.parametrize("full_newton", [True, False])
+def test_the_placement_assembles_a_jacobian_at_every_iteration_and_has_no_stall_test(tmp_path, monkeypatch,
+                                                                                   full_newton):
+    """With solver.jacobian_reuse_ratio = 0.6 the placement's penalty continuation failed on the data
+    fidelity when it kept the Jacobian: the placement runs with a fresh one at every iteration and
+    without the stall test (the cycle of the test above is not ended inside it). The same placement
+    with Stepper.PLACEMENT_FULL_NEWTON off keeps Jacobians, which shows that the count can fail."""
+    from petsc4py import PETSc
+    from deapull.fem_solver.stepping import Stepper
+    monkeypatch.setattr(Stepper, "PLACEMENT_FULL_NEWTON", full_newton)
+    stepper = _stepper(tmp_path, "solver.jacobian_reuse_ratio=0.6", "time.placement_first_step=0.25")
+    stepper.start()
+    p = stepper.p
+    if full_newton:
+        assert p.jacobian_reuses == 0 and p.jacobian_assemblies > 0
+        with p.placement_newton():
+            cycle = [5.226e-4, 1.968e-4] + [1.891e-3, 9.356e-4, 1.430e-3, 1.978e-3] * 3
+            reasons = [p._converged(p.snes, it, (0.0, 0.0, f)) for it, f in enumerate(cycle)]
+        assert all(r == PETSc.SNES.ConvergedReason.ITERATING for r in reasons)
+    else:
+        assert p.jacobian_reuses > 0
+    assert not p._placing                         # the block restores the scene's Newton
