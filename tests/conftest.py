@@ -42,10 +42,11 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.fem)
 TINY_MESH = ("mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004")
 #: coin_pull and coin_release as their files were before the rounded geometry and the data fidelity became
-#: the file: the sharp free edge, a 0.3 mm circular rim, no tip zone or rim band, the soft coin, 5 x 5
-#: contact points (the fast meshes that the FEM's machinery tests are written for; each test names what
-#: it changes)
-SHARP = ("dea.free_edge_radius_m=0.0", "coin.edge_radius_m=0.0003", "coin.edge_shape='circular'",
+#: the file: the 20 mm wide DEA with the coin 3 mm inboard, the sharp free edge, a 0.3 mm circular rim, no
+#: tip zone or rim band, the soft coin, 5 x 5 contact points, a fresh Jacobian at 0.3 (the fast meshes that
+#: the FEM's machinery tests are written for; each test names what it changes)
+SHARP = ("dea.width_m=0.02", "coin.center_from_tip_m=0.003", "solver.jacobian_reuse_ratio=0.3",
+         "dea.free_edge_radius_m=0.0", "coin.edge_radius_m=0.0003", "coin.edge_shape='circular'",
          "mesh.tip_zone_m=0.0", "mesh.rim_band_width_m=0.0", "mesh.rim_band_m=[]", "mesh.free_edge_divisions=2",
          "mesh.n_length=16",
          "mesh.n_passive=1", "contact.quadrature_degree=8", "contact.penalty_N_m3=2.24e9", "table.penalty_N_m3=1e11",
