@@ -74,8 +74,8 @@ def load_study(name_or_path: str | Path) -> dict:
         if not ladder.get("ratio", 0) > 1:
             raise InputError(f"{path}: ladders.{name}.ratio = {ladder.get('ratio')!r}: expected a number > 1")
     checks = study.get("checks", {})
-    named = [*checks.get("dt", []), checks.get("default", ""), *(n for pair in checks.get("pairs", {}).values()
-                                                                 for n in pair)]
+    named = [*checks.get("dt", []), checks.get("default", ""), checks.get("corner", ""),
+             *(n for pair in checks.get("pairs", {}).values() for n in pair)]
     unknown = [n for n in named if n and n not in cases]
     if unknown:
         raise InputError(f"{path}: [checks] names {unknown[0]!r}, not a case; cases: {', '.join(cases)}")
@@ -201,7 +201,12 @@ def summarise(study: dict, metrics: dict) -> dict:
 
 
 def _shared_case(study: dict) -> str:
-    """The one case every ladder passes through (its levels differ only in that ladder's direction)."""
+    """The corner of the additive model: ``[checks] corner``, else the one case every ladder passes
+    through. With x(a, b) = x* + e_a + e_b, R_a = x* + e_b at ladder b's level of a's direction and
+    R_b = x* + e_a at ladder a's level of b's, so x* = R_a + R_b − x at (b's level of a, a's level of b)."""
+    corner = study.get("checks", {}).get("corner", "")
+    if corner:
+        return corner
     common = set.intersection(*(set(lad["cases"]) for lad in study["ladders"].values()))
     return common.pop() if len(common) == 1 else ""
 

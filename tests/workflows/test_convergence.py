@@ -75,3 +75,27 @@ def test_a_results_block_is_rewritten_from_its_file(tmp_path):
     assert "| 60 s at 100 dofs | 130 s (ABAQUS) |" in text and "old" not in text and text.endswith("\nb\n")
     with pytest.raises(KeyError, match="nope"):
         docs_tables.render("<!-- results:nope -->\nx\n<!-- /results:nope -->", tmp_path)
+
+
+def test_two_ladders_through_different_cases_meet_at_their_corner():
+    """Errors that add, x(a, b) = 1 + 0.1 h_a^2 + 0.05 h_b: a tip ladder at h_a = 1/2, 1/4, 1/8 on the
+    coarsest layers and a layers ladder at h_b = 1, 1/2, 1/4 on the coarsest tip zone share no case;
+    with the corner (h_a = 1, h_b = 1) named the reference is the exact 1. Broken once with the corner
+    left out: no reference (the ladders share no case)."""
+    def x(ha, hb):
+        return 1.0 + 0.1 * ha ** 2 + 0.05 * hb
+    grid = {"a2": (0.5, 1.0), "a4": (0.25, 1.0), "a8": (0.125, 1.0), "b1": (1.0, 1.0), "b2": (1.0, 0.5),
+            "b4": (1.0, 0.25)}
+    metrics = {n: {"x_at_t_mm": x(*h), "x_end_mm": x(*h), "peak_overlap_um": 1.0, "min_points": 30,
+                   "t": [0.0, 1.0], "x": [0.0, 1e-3 * x(*h)]} for n, h in grid.items()}
+    study = {"study": {"scene": "coin_pull", "time_s": 0.95}, "cases": {n: [] for n in grid},
+             "ladders": {"tip": {"cases": ["a2", "a4", "a8"], "ratio": 2},
+                         "layers": {"cases": ["b1", "b2", "b4"], "ratio": 2}},
+             "checks": {"corner": "b1", "default": "a2"}, "path": "x.toml"}
+    out = convergence.summarise(study, metrics)
+    assert out["ladders"]["tip"]["observed_order_x_at_t"] == pytest.approx(2.0)
+    assert out["ladders"]["layers"]["observed_order_x_at_t"] == pytest.approx(1.0)
+    assert out["reference_x_at_t_mm"] == pytest.approx(1.0, rel=1e-12)
+    assert out["default_error_percent"] == pytest.approx(100 * (x(0.5, 1.0) - 1.0), rel=1e-9)
+    del study["checks"]["corner"]
+    assert math.isnan(convergence.summarise(study, metrics)["reference_x_at_t_mm"])
