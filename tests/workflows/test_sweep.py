@@ -38,12 +38,14 @@ def test_the_push_case_is_the_mpcs_full_push_then_held():
 
 def test_the_release_case_meshes_the_rim_where_the_placed_dea_crosses_it():
     """Placed at 400 V the free edge crosses the rim nearer the middle: the release case carries its
-    own band; the ramps' band follows the coin (its width from the file)."""
+    own band; the ramps' band follows the coin (its width from the file): the edge at rest 2 mm from
+    the coin's axis crosses the rim's middle circle (4.5 mm) at |z| = 4.03 mm, so the 2 mm band starts
+    at 3.03 mm."""
     from deapull.meshing.build import rim_band
     cases = sweep_cases("coin_pull", ["C1"], (), "excitation")
     bands = {c.name: rim_band(scenes.load("coin_pull", setup=c.setup, overrides=c.overrides)) for c in cases}
     assert bands.pop("C1_release") == (0.0015, 0.004)
-    assert len(set(bands.values())) == 1 and 0.0022 < min(bands.values())[0] < 0.0025
+    assert len(set(bands.values())) == 1 and 0.0030 < min(bands.values())[0] < 0.00305
 
 
 def test_the_closing_table_names_the_cases_whose_contact_was_thin():
