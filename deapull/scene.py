@@ -734,7 +734,8 @@ def fidelity_of_resolved(text: str, setup: str | None, scene_file: str | Path | 
         ``name``: a ``[fidelities.NAME]`` of the scene file (``scene_file``, default the shipped
         scene the text names), "" for the file as written, None for other overrides or a text
         that does not parse; ``fingerprint``: 12 hex digits of the SHA-256 of the sections of
-        :data:`DISCRETISATION` ("" when the text does not parse), equal for two runs solved alike.
+        :data:`DISCRETISATION` less the :data:`SOLVER_PATH` keys ("" when the text does not parse),
+        equal for two runs solved alike.
     """
     import hashlib
     import json
