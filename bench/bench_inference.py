@@ -17,7 +17,7 @@ the Python scan (what the f-memory f_a ran on before); ``engine="native"`` is
 ``--calibration N`` measures instead what the inference can tell (goal G6): over N seeds of the
 noise, each seed's plant f_a with one of the design's coins C1..C8 in turn (:func:`design_coins`),
 the same push for ``--steps`` steps (default 2,500) with one Levenberg–Marquardt update every 10
-steps (the MPC's ``infer_every``), under each of ``--priors`` and ``--losses``; then, per field, the
+steps (the MPC's ``inference.every``), under each of ``--priors`` and ``--losses``; then, per field, the
 median relative error of the estimate and how often the posterior's 68 % interval
 (:func:`~deapull.control.inference.posterior`, Laplace) covers the truth, and the relative error
 of the onset voltage (where the estimate's f_a first moves the coin 1 µm under the push, against

@@ -32,10 +32,59 @@ from __future__ import annotations
 
 import collections
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 FILTERS = ("none", "kf")
+#: what an MPC plans from (:class:`EstimatorConfig`)
+ESTIMATORS = ("bias", "kf", "none")
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """The MPC's state estimate (``[mpc.estimator]``).
+
+    Attributes
+    ----------
+    kind : {"bias", "kf", "none"}
+        ``bias`` (default): :class:`BiasKalman`, the position and f_a's gain error g at every
+        noise level (offset-free tracking); ``kf``: :class:`ModelKalman`, the position alone;
+        ``none``: the observation itself.
+    process_std_m, process_fraction : float
+        q₀, the model's one-step position error at rest (m), and κ, its error per moving step as
+        a fraction of the predicted step (for ``bias``: the part g does not explain).
+    innovation_window : int
+        :class:`BiasKalman`'s innovation check over this many steps (0: off): an estimate that
+        lags the observations by more than the filter's own std allows is let go to follow them.
+    """
+
+    kind: str = "bias"
+    process_std_m: float = 1e-6
+    process_fraction: float = 0.2
+    innovation_window: int = 0
+
+    def __post_init__(self):
+        from deapull.errors import InputError
+        if self.kind not in ESTIMATORS:
+            raise InputError(f"mpc.estimator.kind = {self.kind!r}: choose one of {', '.join(ESTIMATORS)}")
+        if not (math.isfinite(self.process_std_m) and self.process_std_m > 0):
+            raise InputError(f"mpc.estimator.process_std_m = {self.process_std_m!r}: must be a finite number > 0")
+        if not (math.isfinite(self.process_fraction) and self.process_fraction >= 0):
+            raise InputError(f"mpc.estimator.process_fraction = {self.process_fraction!r}: must be a finite "
+                             f"number >= 0")
+        if int(self.innovation_window) != self.innovation_window or self.innovation_window < 0:
+            raise InputError(f"mpc.estimator.innovation_window = {self.innovation_window!r}: must be an integer "
+                             f">= 0 (steps; 0: off)")
+
+    def make(self, noise_std_m: float):
+        """The filter of this kind for observation noise ``noise_std_m`` (None for ``none``)."""
+        if self.kind == "bias":
+            return BiasKalman(noise_std_m, self.process_std_m, self.process_fraction,
+                              innovation_window=int(self.innovation_window))
+        if self.kind == "kf":
+            return ModelKalman(noise_std_m, self.process_std_m, self.process_fraction)
+        return None
 
 
 class ModelKalman:

@@ -103,6 +103,10 @@ def named_prior(name: str) -> dict | None:
     return COIN_PRIOR if name == "coins" else None
 
 
+#: what the online inference fits φ to (:attr:`InferenceConfig.loss`)
+LOSSES = ("step", "rollout")
+
+
 @dataclass(frozen=True)
 class InferenceConfig:
     """Settings of the online inference.
@@ -152,6 +156,17 @@ class InferenceConfig:
         then re-derived in C too (:func:`~deapull.control.native.memory_scan`); the same
         numbers to round-off), ``torch`` by autograd through the model, ``auto`` native
         where available. Adam always uses torch.
+    loss : {"step", "rollout"}
+        What the MPC fits φ to: ``step`` the paper's one-step predictions from the observed state
+        (Algorithm 2, :class:`OnlineInference`); ``rollout`` f_a's open-loop rollout of the whole
+        episode under the applied voltages against every observed position
+        (:class:`~deapull.control.rollout_inference.RolloutInference`: no noise in its inputs; one
+        Levenberg–Marquardt update every ``every`` steps).
+    every : int
+        Control steps between ``rollout`` updates.
+    crlb_every : int
+        The MPC reports the inferred fields' Cramér–Rao bounds every this many transitions (0:
+        never; with a prior and the one-step loss they gate which fields it plans with).
     memory_refresh : int
         A model with memory (f-memory: the tip's contact point and friction before each
         transition, which depend on φ through the whole history): every this many updates
@@ -178,6 +193,9 @@ class InferenceConfig:
     observation_std_m: float = 1e-9
     engine: str = "auto"
     memory_refresh: int = 1
+    loss: str = "step"
+    every: int = 10
+    crlb_every: int = 100
 
     def __post_init__(self):
         if self.fields is not None and self.prior:
@@ -192,6 +210,16 @@ class InferenceConfig:
             raise InputError(f"inference optimizer {self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
         if self.engine not in ENGINES:
             raise InputError(f"inference engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
+        if self.loss not in LOSSES:
+            raise InputError(f"mpc.inference.loss = {self.loss!r}: choose one of {', '.join(LOSSES)}")
+        if self.loss == "rollout" and self.optimizer != "lm":
+            raise InputError(f"mpc.inference.loss = 'rollout' takes Levenberg-Marquardt steps: "
+                             f"mpc.inference.optimizer = 'lm', not {self.optimizer!r}")
+        for name in ("every", "crlb_every"):
+            value = getattr(self, name)
+            if int(value) != value or value < (1 if name == "every" else 0):
+                raise InputError(f"mpc.inference.{name} = {value!r}: must be an integer >= "
+                                 f"{1 if name == 'every' else 0} (control steps)")
         for f, spec in (self.prior or {}).items():
             if f not in BOUNDS:
                 raise InputError(f"inference prior: unknown field {f!r}; choose from {', '.join(BOUNDS)}")

@@ -21,25 +21,25 @@ from the previous estimate and the applied voltages. The position is the observa
 itself, or with ``filter="kf"`` (policy ``mpc+kf``) the estimate of a Kalman filter whose
 prediction is that same model step (:mod:`deapull.control.filters`).
 
-**Offset-free tracking** (``offset_free=True``, the default, at every noise level). f_a is
+**Offset-free tracking** (``estimator.kind = "bias"``, the default, at every noise level). f_a is
 a model of other coins (C3..C7) and of the surrogate's data, not of the plant: on the FEM
 its travel per volt is off by a roughly constant factor while the coin slides, and an MPC
 that trusts it overshoots or stops short. A :class:`~deapull.control.filters.BiasKalman`
 estimates that factor, g, with the position (x' = x + (1 + g) Δ, Δ the model's step), and
 the plan aims the model at x̂ + (x^T − x̂)/(1 + g): the model's travel that the plant turns
-into the remaining distance. Once the estimate is inside ``hold_band`` × tolerance of the
+into the remaining distance. Once the estimate is inside ``HOLD_BAND`` × tolerance of the
 target the policy holds V (ΔV = 0) until the estimate leaves that band by more than its
 own standard deviation: at constant V static friction holds the coin, so holding is
 what settles it, and the MPC's own small corrections on a noisy estimate are what would
 move it out. Past the target the plan may bring V down (the release pulls the
 coin back toward the clamp).
 
-**Re-centring** (``recentre_stds``). The hold starts on an estimate that is still noisy (at
+**Re-centring** (``RECENTRE_STDS``). The hold starts on an estimate that is still noisy (at
 σ = 0.1 mm its std is ~5–10 µm when the coin arrives), so the coin may stand near the edge
 of the window, or just outside it, while the estimate says it is inside; the hysteresis
-(``hold_stds``) then keeps the hold. As the held observations average down, the policy
+(``HOLD_STDS``) then keeps the hold. As the held observations average down, the policy
 re-centres: while the estimate stands off the target, on either side, by more than
-``recentre_stds`` of its own stds and more than ``recentre_band`` × tolerance, it steps V by
+``RECENTRE_STDS`` of its own stds and more than ``RECENTRE_BAND`` × tolerance, it steps V by
 ``creep_V`` toward the target at every step until it no longer does. The steps come in bursts, not spaced out: on the FEM a 0.1 V step every 20 steps
 did not move a held coin (fem:C7 stood 21.5 µm short while V crept from 394 to 400 V),
 the same steps at every step did (it came to 9.95 µm short and settled). Measured on fem:C3
@@ -55,13 +55,19 @@ travel grows with the push rate the slower push costs the last µm (:meth:`MPCPo
 The stand-off (``standoff_stds``) gives way there too: a coin parked short of such a target
 restarts only after the tip has reloaded, and no voltage is left for that stroke.
 
+**Rate schedule** (``rate_V``, ``creep_V``, ``approach_m``). With a cruise rate below the plant's
+ΔV_max (the FEM's 0.4 V per step, where a slow push drags a heavy coin along), the policy steps at
+the plant's full rate while f_a, pushed that fast for ``MARGIN_V`` more, leaves the coin standing
+(below the onset voltage moves nothing), then plans at the cruise rate, tapered within
+``approach_m`` of the target down to ``creep_V``.
+
 **Memory.** With an f_a whose step needs the DEA's state beyond its voltage (``f-memory``:
 the tip's contact point P and friction T, :attr:`CoinDynamics.memory_units`) the plan's
 state is ξ = (x, u, V, P, T). The plant shows neither: the policy tracks them as it tracks u,
 by its own model step from the previous estimate under the applied voltage, starting from
 the DEA at rest at the first voltage.
 
-**Stalls** (``unstall``). When the coin stands outside the hold band (``hold_band`` × the
+**Stalls** (``UNSTALL``). When the coin stands outside the hold band (``HOLD_BAND`` × the
 tolerance; the tolerance itself without a hold band) and the solved plan
 leaves V unchanged for its first step with the coin standing after it, the policy creeps
 (``creep_V``) toward the target instead: such a plan sees the motion that more voltage
@@ -80,9 +86,9 @@ carries to the next of the same task (target, tolerance, noise, step and rate): 
 that ends with its estimate inside the tolerance of a single target, at most that far
 uncertain, leaves the voltage V_f it ended at and the bias filter's g with its variance.
 The next episode starts the filter from them and plays a rate schedule instead of planning
-its way there: the full rate up to V_f − ``learn_margin_V``, ``creep_V`` per step from there
+its way there: the full rate up to V_f − ``MARGIN_V``, ``creep_V`` per step from there
 to V_f, then the hold. The hold's estimate starts where the learnt episode ended, with that
-estimate's variance plus (``learn_path_share`` × tolerance)² for the other path (the fast
+estimate's variance plus (``LEARN_PATH_SHARE`` × tolerance)² for the other path (the fast
 schedule is not the path that episode took); the observations refine it, and the
 re-centring steps only where they move it confidently off the target. Each later episode learns again from
 where it ended, so a correction made in the hold carries on.
@@ -93,13 +99,13 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 
 import torch
 
 from deapull.control import mpc, native
 from deapull.control.dynamics import COSTS, U_UNIT_M_S, X_UNIT_M, CoinDynamics, coin_cost
-from deapull.control.filters import FILTERS, BiasKalman, ModelKalman
+from deapull.control.filters import EstimatorConfig
 from deapull.control.inference import InferenceConfig, OnlineInference
 from deapull.control.rollout_inference import RolloutInference
 from deapull.control.policies import Policy
@@ -121,172 +127,159 @@ def make_dynamics(model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float, e
     return CoinDynamics(model, phi, dt, dv_max_V, v_max_V)
 
 
-#: what the online inference fits φ to (:attr:`MPCConfig.infer_loss`)
-INFER_LOSSES = ("step", "rollout")
+#: the terminal policy's fixed rules (module docstring; each has a test that fails without it):
+#: hold once the estimate is inside HOLD_BAND × tolerance of the target, and go on holding while it
+#: stays within that band plus HOLD_STDS of its own stds (noise alone does not end a hold);
+HOLD_BAND, HOLD_STDS = 0.5, 4.5
+#: in a hold, creep toward the target while the estimate is off it by more than RECENTRE_STDS of its
+#: stds and RECENTRE_BAND × tolerance;
+RECENTRE_STDS, RECENTRE_BAND = 1.5, 0.3
+#: stand off until the estimate's std is below STANDOFF_STD × tolerance, at most MAX_WAIT steps per
+#: setpoint (no stand-off where σ/√MAX_WAIT stays above it);
+STANDOFF_STD, MAX_WAIT = 0.3, 1500
+#: the rate schedule: the plant's full rate up to MARGIN_V below the voltage where the coin starts
+#: (f_a's onset on the way out; a learnt episode's final voltage), then the cruise rate (or creep);
+#: a learnt episode's hold starts with LEARN_PATH_SHARE × tolerance added to its std (the path it
+#: did not take);
+MARGIN_V, LEARN_PATH_SHARE = 5.0, 0.5
+#: with a prior and the one-step loss, a field is planned at its estimate once its Cramér–Rao bound
+#: on the relative error is below this (the paper's 10 % inference error), else at the prior's median
+IDENTIFIED_CRLB = 0.1
+#: creep toward the target when the solved plan holds V with the coin standing outside the hold band
+#: (module docstring, "Stalls")
+UNSTALL = True
 
 
 @dataclass(frozen=True)
 class MPCConfig:
-    """Settings of the MPC policy.
+    """Settings of the MPC policy: the solver, the estimator, the inference and the terminal policy.
+
+    A preset's ``[mpc]`` table (``[mpc.estimator]``, ``[mpc.inference]``) and ``--set mpc.KEY=VALUE``
+    set them (:func:`mpc_config`).
 
     Attributes
     ----------
     horizon, iterations : int
         Steps planned ahead and iLQR iterations per control step (paper: 20, 20).
     cost : {"scaled", "paper"}
-    dv_weight : float
-        w of the scaled cost.
-    terminal_weight : float
-        Weight of the final position term relative to a stage's.
-    infer : bool
-        Infer φ online (Algorithm 2) and plan with the current estimate; otherwise plan with
-        the φ given to the policy.
-    inference : InferenceConfig
-    infer_loss : {"step", "rollout"}
-        What φ is fitted to: ``step`` the paper's one-step predictions from the observed state
-        (Algorithm 2, :class:`~deapull.control.inference.OnlineInference`); ``rollout`` f_a's
-        open-loop rollout of the whole episode under the applied voltages against every observed
-        position (:class:`~deapull.control.rollout_inference.RolloutInference`: no noise in its
-        inputs; one update every ``infer_every`` steps).
-    infer_every : int
+        :func:`~deapull.control.dynamics.coin_cost`.
     engine : {"auto", "native", "torch"}
         Where f_a's steps, Jacobians and the iLQR run: ``native`` the compiled solver of
         :mod:`deapull.control.native` (f-coulomb and f-memory; the same plans to round-off,
         ~400–1,000× faster), ``torch`` :func:`mpc.solve` on :class:`CoinDynamics`, ``auto`` native
         where it is available.
-    filter : {"none", "kf"}
-        ``kf``: plan from the estimate of a Kalman filter on the position whose prediction
-        is f_a itself (:class:`~deapull.control.filters.ModelKalman`, process noise
-        ``process_std_m`` per step at rest, plus ``process_fraction`` of each predicted
-        step); the policy is then named ``mpc+kf``.
-    process_std_m, process_fraction : float
-    offset_free : bool
-        Estimate f_a's gain error g with the position (:class:`BiasKalman`, whatever the noise;
-        it replaces ``filter``) and plan the corrected travel (module docstring).
-    bias_process_fraction : float
-        The bias filter's κ: the model's error per moving step that g does not explain.
-    hold_band : float
-        Start holding V once the estimate is within this fraction of the tolerance of the
-        target (0: never hold; the MPC alone decides).
-    recentre_stds, recentre_band :
-        Re-centring during a hold (module docstring; ``recentre_stds`` 0: off): a ``creep_V``
-        step toward the target at every step the estimate is off it by more than this many
-        stds and this fraction of the tolerance.
-    hold_stds : float
-        Go on holding while the estimate stays within the band plus this many of its own
-        standard deviations (a hysteresis: noise alone does not end the hold, an estimate
-        that has averaged down to a coin outside the band does). 4.5 (was 1): at 1 the
-        estimate's own noise ended holds of coins that were inside and the re-plan pulled
-        them out (surrogate:C1 / C2, 10 episodes: settled 8 / 5 of 10 at σ = 0.1 mm and 1 / 3
-        at 1 mm; at 4.5: 10 / 7 and 7 / 7); the re-centring corrects the smaller, confident
-        offsets that the wider band no longer re-plans for.
+    estimator : EstimatorConfig
+        What the plan starts from (:class:`~deapull.control.filters.EstimatorConfig`): ``bias``
+        (default) the offset-free estimate of the position and of f_a's gain error, with the
+        terminal policy below; ``kf`` a position-only Kalman estimate on f_a, ``none`` the
+        observation, both without the terminal policy (the plain MPC, ``mpc+kf``).
+    inference : InferenceConfig or None
+        The online inference of φ (Algorithm 2; ``loss``, ``every`` and ``crlb_every`` are its own
+        settings); None: plan with the φ given to the policy.
+    rate_V : float
+        The cruise |ΔV| per step once the coin moves (V; 0: the plant's ΔV_max), in the plan and
+        on the plant; below the onset, where f_a says the coin stands, the plant's ΔV_max. A
+        heavy coin is carried further by a slow push: at the plant's 5 V per step the tip slips
+        over it, at the sweep's 0.4 V per step it is dragged along (docs/control.md).
     creep_V : float
-        Outside the hold region the smallest |ΔV| per step (V): the heuristic's 0.5 V, a
-        rate that still drags the coin; smaller planned steps are raised to it.
+        The slowest |ΔV| per step outside the hold (V); smaller planned steps are raised to it.
     approach_m : float
-        Within this distance (m) of the target |ΔV| is limited to ΔV_max × distance /
+        Within this distance (m) of the target |ΔV| is limited to the rate × distance /
         ``approach_m`` (not below ``creep_V``), so the coin arrives slowly and does not coast
-        past (0: no limit); not where the target lies at the edge of the reach (module
-        docstring, "Taper at the reach").
-    max_rate_V : float
-        Ramp-rate-aware planning: plan and apply at most this |ΔV| per step (V; 0: the
-        plant's ΔV_max). A heavy coin is carried further by a slow push: at the plant's
-        5 V per step the tip slips over it, at the sweep's 0.4 V per step it is dragged
-        along (docs/control.md).
-    crlb_every : int
-        Report the inferred fields' Cramér–Rao bounds every this many transitions (0: never;
-        :meth:`MPCPolicy.inferred`).
-    identified_crlb : float
-        With a prior on φ (``inference.prior``), a field is planned with its estimate only
-        once its Cramér–Rao bound on the relative error is below this (0.1: the paper's 10 %
-        inference error); otherwise with the prior's median (:meth:`MPCPolicy._planning_phi`).
-    unstall : bool
-        Creep toward the target when the solved plan holds V with the coin standing outside
-        the tolerance (module docstring, "Stalls").
-    standoff_stds, standoff_std, max_wait :
-        Stand-off under noise (0: off): while the position estimate's std exceeds
-        ``standoff_std`` × tolerance, aim ``standoff_stds`` stds short of the target and hold
-        V there (at most ``max_wait`` steps per setpoint) while the observations average down;
-        then go on to the target on the model's (gain-corrected) prediction.
+        past (0: no limit).
+    standoff_stds : float
+        Under noise, while the position estimate's std exceeds ``STANDOFF_STD`` × tolerance,
+        aim this many stds short of the target and hold V there while the observations average
+        down, then go on (0: off).
     reach_gate : bool
         Let the stand-off and the taper give way where f_a says the target lies at the edge of
-        the reach (:meth:`MPCPolicy._at_reach`; default on). Off for a plant that can go further
-        than f_a at the planning φ says: on the surrogates at 5 V per step the prior's median
-        puts −1 mm at C1's edge, the gate fires and the coin overshoots (docs/control.md, tenth
-        session).
-    innovation_window : int
-        The bias filter's innovation check over this many steps (0: off;
-        :class:`~deapull.control.filters.BiasKalman`): an estimate that lags the observations
-        by more than the filter's own std allows is let go to follow them.
-    learn, learn_margin_V, learn_path_share :
-        Learning across the episodes of a repeated task (module docstring): the next episode
-        starts from the previous one's final voltage V_f, position and g, at the full rate up to
-        ``learn_margin_V`` below V_f, at ``creep_V`` per step from there; the other path adds
-        ``learn_path_share`` × tolerance to the std of the position it starts the hold from.
+        the reach (:meth:`MPCPolicy._at_reach`). Off for a plant that can go further than f_a at
+        the planning φ says (the surrogates at 5 V per step: the prior's median puts −1 mm at
+        C1's edge).
+    learn : bool
+        Learning across the episodes of a repeated task (module docstring).
     """
 
     horizon: int = 20
     iterations: int = 20
     cost: str = "scaled"
-    dv_weight: float = 1e-3
-    terminal_weight: float = 1.0
-    infer: bool = True
-    inference: InferenceConfig = field(default_factory=lambda: InferenceConfig(optimizer="lm"))
-    infer_loss: str = "step"
-    infer_every: int = 10
     engine: str = "auto"
-    filter: str = "none"
-    process_std_m: float = 1e-6
-    process_fraction: float = 0.2
-    offset_free: bool = True
-    bias_process_fraction: float = 0.2
-    hold_band: float = 0.5
-    hold_stds: float = 4.5
-    recentre_stds: float = 1.5
-    recentre_band: float = 0.3
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    inference: InferenceConfig | None = field(default_factory=lambda: InferenceConfig(optimizer="lm"))
+    rate_V: float = 0.0
     creep_V: float = 0.5
     approach_m: float = 0.0
-    max_rate_V: float = 0.0
-    crlb_every: int = 100
-    identified_crlb: float = 0.1
     standoff_stds: float = 0.0
-    standoff_std: float = 0.3
-    max_wait: int = 1500
-    innovation_window: int = 0
-    unstall: bool = True
     reach_gate: bool = True
     learn: bool = True
-    learn_margin_V: float = 5.0
-    learn_path_share: float = 0.5
 
     def __post_init__(self):
-        if self.filter not in FILTERS:
-            raise InputError(f"MPC filter {self.filter!r}: choose one of {', '.join(FILTERS)}")
         if self.engine not in ENGINES:
-            raise InputError(f"MPC engine {self.engine!r}: choose one of {', '.join(ENGINES)}")
-        if self.infer_loss not in INFER_LOSSES:
-            raise InputError(f"--infer-loss {self.infer_loss!r}: choose one of {', '.join(INFER_LOSSES)}")
-        if int(self.infer_every) != self.infer_every or self.infer_every < 1:
-            raise InputError(f"--infer-every {self.infer_every!r}: must be an integer >= 1 (control steps)")
-        if self.infer and self.infer_loss == "rollout" and self.inference.optimizer != "lm":
-            raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, "
-                             f"not {self.inference.optimizer!r}")
-        if not 0 <= self.hold_band <= 1:
-            raise InputError(f"MPC hold band {self.hold_band}: a fraction of the tolerance in [0, 1]")
-        for name in ("hold_stds", "recentre_stds", "recentre_band", "creep_V", "approach_m", "max_rate_V",
-                     "standoff_stds", "max_wait", "crlb_every", "bias_process_fraction", "innovation_window",
-                     "learn_margin_V", "learn_path_share"):
+            raise InputError(f"mpc.engine = {self.engine!r}: choose one of {', '.join(ENGINES)}")
+        if self.cost not in COSTS:
+            raise InputError(f"mpc.cost = {self.cost!r}: choose one of {', '.join(COSTS)}")
+        if int(self.horizon) != self.horizon or self.horizon < 1:
+            raise InputError(f"mpc.horizon = {self.horizon!r}: must be an integer >= 1")
+        if int(self.iterations) != self.iterations or self.iterations < 0:
+            raise InputError(f"mpc.iterations = {self.iterations!r}: must be an integer >= 0")
+        for name in ("rate_V", "approach_m", "standoff_stds"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
-                raise InputError(f"MPC {name} = {value!r}: must be a finite number >= 0")
-        for name in ("standoff_std", "identified_crlb"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise InputError(f"MPC {name} = {value!r}: must be a finite number > 0")
-        if self.horizon < 1 or self.iterations < 0:
-            raise InputError(f"MPC horizon {self.horizon} must be >= 1 and iterations {self.iterations} >= 0")
-        if self.cost not in COSTS:
-            raise InputError(f"MPC cost {self.cost!r}: choose one of {', '.join(COSTS)}")
+                raise InputError(f"mpc.{name} = {value!r}: must be a finite number >= 0")
+        if not (math.isfinite(self.creep_V) and self.creep_V > 0):
+            raise InputError(f"mpc.creep_V = {self.creep_V!r}: must be a finite number > 0 (V per step)")
+
+    @property
+    def terminal(self) -> bool:
+        """Whether the terminal policy (hold, re-centre, stand-off, taper, rate, learning) acts: with
+        the offset-free estimator only."""
+        return self.estimator.kind == "bias"
+
+
+def mpc_config(table: dict, base: MPCConfig = MPCConfig(), where: str = "mpc") -> MPCConfig:
+    """``base`` with a nested table of settings (a preset's ``[mpc]``, ``--set mpc.KEY=VALUE``) applied:
+    ``estimator`` and ``inference`` are sub-tables of their configs' fields. An unknown key, or a value
+    of the wrong type, raises :class:`InputError` naming it and what is allowed."""
+    return _apply(base, table, where)
+
+
+def _apply(config, table: dict, where: str):
+    allowed = {f.name: f for f in fields(config)}
+    changes = {}
+    for key, value in table.items():
+        if key not in allowed:
+            raise InputError(f"{where}.{key}: unknown key; allowed: {', '.join(allowed)}")
+        current = getattr(config, key)
+        if key == "inference" and current is None and isinstance(value, dict):
+            current = InferenceConfig(optimizer="lm")
+        if is_dataclass(current):
+            if not isinstance(value, dict):
+                raise InputError(f"{where}.{key} = {value!r}: expected a table of {type(current).__name__} keys")
+            changes[key] = _apply(current, value, f"{where}.{key}")
+        else:
+            changes[key] = _typed(value, current, f"{where}.{key}")
+    return replace(config, **changes)
+
+
+def _typed(value, current, where: str):
+    """``value`` as the type of the field's ``current`` value (an int is a float's too; a list is a tuple's)."""
+    if current is None or isinstance(current, dict):
+        return tuple(value) if isinstance(value, list) else value
+    kind = type(current)
+    if kind is bool:
+        ok = isinstance(value, bool)
+    elif kind is float:
+        ok, value = isinstance(value, (int, float)) and not isinstance(value, bool), value
+        value = float(value) if ok else value
+    elif kind is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif kind is tuple:
+        ok, value = isinstance(value, (list, tuple)), tuple(value) if isinstance(value, (list, tuple)) else value
+    else:
+        ok = isinstance(value, kind)
+    if not ok:
+        raise InputError(f"{where} = {value!r}: expected {kind.__name__}")
+    return value
 
 
 class MPCPolicy(Policy):
@@ -313,8 +306,8 @@ class MPCPolicy(Policy):
 
     def __init__(self, model, config: MPCConfig = MPCConfig(), phi: Phi | None = None):
         self.model, self.config = model, config
-        self.name = "mpc" if config.filter == "none" or config.offset_free else f"mpc+{config.filter}"
-        if not config.infer and phi is None:
+        self.name = "mpc+kf" if config.estimator.kind == "kf" else "mpc"
+        if config.inference is None and phi is None:
             raise InputError("an MPC without inference needs the φ to plan with")
         self.fixed_phi = None if phi is None else model.check_phi(phi).to(dtype=torch.float64)
         self.inference = None
@@ -332,7 +325,7 @@ class MPCPolicy(Policy):
     def _learn(self) -> None:
         """Keep what the episode that just ended found, if it ended inside the tolerance of its one
         target (by its own estimate, at most a tolerance uncertain): its final voltage and g."""
-        if not self.config.learn or self.spec is None or self.previous is None or self.bias is None:
+        if not (self.config.learn and self.config.terminal) or self.spec is None or self.previous is None or self.bias is None:
             return
         x, _, V = self.previous
         if self.target_m != float(self.spec.target_m) or self.moved_target:
@@ -346,33 +339,38 @@ class MPCPolicy(Policy):
         cfg = self.config
         self._learn()
         self.moved_target = False
-        self.schedule = self.learned.get(self._task_key(spec)) if cfg.learn and cfg.offset_free else None
+        self.schedule = self.learned.get(self._task_key(spec)) if cfg.learn and cfg.terminal else None
         self.spec, self.target_m, self.tolerance_m = spec, float(spec.target_m), float(spec.tolerance_m)
         self.dt, self.dv_max_V, self.v_max_V = float(spec.dt_s), float(spec.dv_max_V), float(spec.v_max_V)
-        if cfg.max_rate_V > 0:              # the plan's ΔV_max: the model sees the rate the plant gets
-            self.dv_max_V = min(self.dv_max_V, cfg.max_rate_V)
+        self.plant_dv_max_V = self.dv_max_V
+        # the terminal policy's rules, read here so that a test can switch one off (module constants)
+        on = cfg.terminal
+        self.hold_band, self.recentre_stds = (HOLD_BAND, RECENTRE_STDS) if on else (0.0, 0.0)
+        self.approach_m, self.standoff_stds = (cfg.approach_m, cfg.standoff_stds) if on else (0.0, 0.0)
+        if cfg.terminal and cfg.rate_V > 0:  # the plan's ΔV_max: the model sees the rate the plant gets
+            self.dv_max_V = min(self.dv_max_V, cfg.rate_V)
         noise = float(spec.noise_std_m)
         self.noisy = noise > 0
         self.kalman = self.bias = None
-        if cfg.offset_free:
-            self.bias = BiasKalman(noise, cfg.process_std_m, cfg.bias_process_fraction,
-                                   innovation_window=int(cfg.innovation_window))
-        elif cfg.filter == "kf":
-            self.kalman = ModelKalman(noise, cfg.process_std_m, cfg.process_fraction)
-        if cfg.infer:
+        if cfg.estimator.kind == "bias":
+            self.bias = cfg.estimator.make(noise)
+        else:
+            self.kalman = cfg.estimator.make(noise)
+        if cfg.inference is not None:
             # a transition counts as moving (stick hinge) only beyond 3 noise stds
             # and the prior's smallest residual std is the noise's
             settings = replace(cfg.inference, motion_threshold_m=max(cfg.inference.motion_threshold_m, 3 * noise),
                                observation_std_m=max(cfg.inference.observation_std_m, noise))
-            if cfg.infer_loss == "rollout":
+            if settings.loss == "rollout":
                 self.inference = RolloutInference(self.model, settings, self.dt, float(spec.dv_max_V),
-                                                  self.v_max_V, cfg.infer_every)
+                                                  self.v_max_V, settings.every)
             elif not isinstance(self.inference, OnlineInference) or self.inference.dt != self.dt \
                     or self.inference.config != settings:
                 self.inference = OnlineInference(self.model, settings, self.dt)
             self.inference.reset()
-        self._crlb = {f"crlb_{f}": math.nan for f in self.inference.fields} if cfg.infer else {}
-        phi = self._planning_phi() if cfg.infer else self.fixed_phi
+        infer = cfg.inference is not None
+        self._crlb = {f"crlb_{f}": math.nan for f in self.inference.fields} if infer else {}
+        phi = self._planning_phi() if infer else self.fixed_phi
         self.dynamics = make_dynamics(self.model, phi, self.dt, self.dv_max_V, self.v_max_V, cfg.engine)
         self.native = callable(getattr(self.dynamics, "solve", None))
         self.cost = self._cost(self.target_m)
@@ -382,6 +380,7 @@ class MPCPolicy(Policy):
         self.previous = None          # (x, u, V) estimate of the previous step
         self.memory = None            # f_a's memory entries (scaled) after that step; None: at rest
         self.reach_end = None         # this step's full-rate rollout to the voltage limit (_at_reach)
+        self.started = not self.dv_max_V < self.plant_dv_max_V   # the rate schedule's fast start is over
         self.solve_ms, self.inference_ms = [], []
 
     def inferred(self) -> dict:
@@ -395,7 +394,7 @@ class MPCPolicy(Policy):
         """Every ``crlb_every`` transitions once the coin has moved: the bounds from the buffer's
         Fisher information at the current φ and :meth:`_residual_std` (inf where the data do
         not identify a field)."""
-        every = self.config.crlb_every
+        every = self.config.inference.crlb_every
         if every and self.inference.moved and self.inference.transitions % every == 0:
             self._crlb = {f"crlb_{f}": v for f, v in self.inference.crlb(self._residual_std()).items()}
 
@@ -407,71 +406,69 @@ class MPCPolicy(Policy):
 
     def _planning_phi(self) -> Phi:
         """The φ the plan uses. Without a prior, the inference's estimate (the paper). With one
-        and the output-error loss (``infer_loss = "rollout"``), the MAP estimate: the prior holds
+        and the output-error loss (``inference.loss = "rollout"``), the MAP estimate: the prior holds
         what the data leave open, and the data move what they determine (the onset), so no gate
         is needed (docs/control.md, "What the data can tell"). With one and the one-step loss,
         whose estimate is biased under noise (errors in variables), each field the data identify
-        (Cramér–Rao bound below ``identified_crlb``) takes the estimate and every other field
-        stays at the prior's median (``crlb_every`` sets how often it is judged; before the first
+        (Cramér–Rao bound below ``IDENTIFIED_CRLB``) takes the estimate and every other field
+        stays at the prior's median (``inference.crlb_every`` sets how often it is judged; before the first
         judgement every field is at the prior)."""
         prior = self.inference.config.prior
-        if not prior or self.config.infer_loss == "rollout":
+        if not prior or self.inference.config.loss == "rollout":
             return self.inference.phi
         estimate = self.inference.estimate()
         values = {}
         for f in self.model.phi_fields:
             bound = self._crlb.get(f"crlb_{f}", math.nan)
-            anchored = f in prior and not bound < self.config.identified_crlb
+            anchored = f in prior and not bound < IDENTIFIED_CRLB
             values[f] = torch.tensor(prior[f][0] if anchored else estimate[f], dtype=torch.float64)
         return Phi(**values)
 
     def _aim(self, xi0, x: float, V: float) -> float:
         """Where the plan goes: the target, or while the estimate is still too uncertain to
-        stop inside the window (std above ``standoff_std`` × tolerance) a stand-off point
+        stop inside the window (std above ``STANDOFF_STD`` × tolerance) a stand-off point
         ``standoff_stds`` of its stds short of it, on the side the coin comes from. Not where
         the target lies at the edge of the reach (:meth:`_at_reach`): a coin stopped there
         restarts only after the tip has reloaded, and no voltage is left to make up that
         stroke (fem:C7 at resolved parked at the stand-off and reached 400 V 11.5 µm short;
         docs/control.md). Nor where waiting cannot help: held observations average the estimate
-        down as σ/√n at best, so when σ/√``max_wait`` is still above ``standoff_std`` × tolerance
+        down as σ/√n at best, so when σ/√``MAX_WAIT`` is still above ``STANDOFF_STD`` × tolerance
         (at σ = 1 mm and a 10 µm window: 26 µm after 1,500 steps) the stand-off only delays the
         reach, and the plan aims at the target."""
-        cfg = self.config
         std = self.estimate_std_m
-        if cfg.standoff_stds <= 0 or std <= cfg.standoff_std * self.tolerance_m or self.waited >= cfg.max_wait:
+        if self.standoff_stds <= 0 or std <= STANDOFF_STD * self.tolerance_m or self.waited >= MAX_WAIT:
             return self.target_m
         if self._unresolvable():
             return self.target_m
-        if self._at_reach(xi0, x, V, within=cfg.standoff_stds * std + cfg.approach_m):
+        if self._at_reach(xi0, x, V, within=self.standoff_stds * std + self.approach_m):
             return self.target_m
-        return self.target_m + self.side * cfg.standoff_stds * std
+        return self.target_m + self.side * self.standoff_stds * std
 
     def _unresolvable(self) -> bool:
-        """Whether held observations cannot average the estimate down to ``standoff_std`` ×
-        tolerance within ``max_wait`` steps (σ/√max_wait above it): waiting at a stand-off point
+        """Whether held observations cannot average the estimate down to ``STANDOFF_STD`` ×
+        tolerance within ``MAX_WAIT`` steps (σ/√MAX_WAIT above it): waiting at a stand-off point
         then only delays the reach."""
-        cfg = self.config
-        return self.spec.noise_std_m / math.sqrt(max(cfg.max_wait, 1)) > cfg.standoff_std * self.tolerance_m
+        return self.spec.noise_std_m / math.sqrt(max(MAX_WAIT, 1)) > STANDOFF_STD * self.tolerance_m
 
     def _wait(self, x: float, aim: float) -> bool:
         """Hold V at the stand-off point while the observations average the estimate down
-        (at most ``max_wait`` steps per setpoint): once the estimate is at or past the
+        (at most ``MAX_WAIT`` steps per setpoint): once the estimate is at or past the
         stand-off point on the way to the target."""
         if aim == self.target_m:
             return False
-        if self.side * (x - aim) <= self.config.hold_band * self.tolerance_m:
+        if self.side * (x - aim) <= self.hold_band * self.tolerance_m:
             self.waited += 1
             return True
         return False
 
     def _recentre(self, x: float) -> float:
         """ΔV during a hold: one ``creep_V`` toward the target when the estimate ``x`` stands
-        off it by more than ``recentre_stds`` stds and ``recentre_band`` × tolerance, else 0
+        off it by more than ``RECENTRE_STDS`` stds and ``RECENTRE_BAND`` × tolerance, else 0
         (module docstring)."""
         cfg = self.config
         off = x - self.target_m
-        if cfg.recentre_stds <= 0 or abs(off) <= max(cfg.recentre_band * self.tolerance_m,
-                                                     cfg.recentre_stds * self.estimate_std_m):
+        if self.recentre_stds <= 0 or abs(off) <= max(RECENTRE_BAND * self.tolerance_m,
+                                                      self.recentre_stds * self.estimate_std_m):
             return 0.0
         return math.copysign(min(cfg.creep_V, self.dv_max_V), off)
 
@@ -489,7 +486,7 @@ class MPCPolicy(Policy):
         ``approach_m``)."""
         if not self.config.reach_gate:
             return False
-        within = self.config.approach_m if within is None else within
+        within = self.approach_m if within is None else within
         if not (self.side > 0 and x > self.target_m and abs(x - self.target_m) < within):
             return False
         steps = math.ceil(max(self.v_max_V - V, 0.0) / self.dv_max_V)
@@ -501,9 +498,24 @@ class MPCPolicy(Policy):
         reach = x + (1.0 + self.gain_error) * (self.reach_end - x)
         return reach > self.target_m - self.tolerance_m
 
+    def _below_onset(self, xi0, x: float, V: float) -> bool:
+        """The rate schedule's fast start: whether f_a, pushed at the plant's full rate, leaves the
+        coin standing for ``MARGIN_V`` more (then the step is the plant's full rate, not the cruise
+        rate, since voltage below the onset moves nothing). Once it does not, the start is over for
+        this setpoint (:attr:`started`)."""
+        if self.side < 0 or x <= self.target_m or V >= self.v_max_V:
+            self.started = True
+            return False
+        steps = math.ceil(MARGIN_V / self.plant_dv_max_V) + 1
+        nu = torch.full((1, steps, 1), self.plant_dv_max_V / self.dv_max_V, dtype=torch.float64)
+        path = self._roll(xi0, nu)[0, :, 0] * X_UNIT_M
+        if float((path - x).abs().max()) > 1e-9:
+            self.started = True
+        return not self.started
+
     def _cost(self, model_target_m: float):
         cfg = self.config
-        return coin_cost(model_target_m, cfg.cost, cfg.dv_weight, cfg.terminal_weight, self.dynamics.n - 3)
+        return coin_cost(model_target_m, cfg.cost, memory=self.dynamics.n - 3)
 
     @property
     def estimate_std_m(self) -> float:
@@ -556,7 +568,7 @@ class MPCPolicy(Policy):
             self.moved_target, self.schedule = True, None
             self.side = math.copysign(1.0, (self.previous[0] if self.previous else x) - target)
             self.waited = 0
-        if cfg.infer:
+        if cfg.inference is not None:
             start = time.perf_counter()
             self.inference.observe(x, V)
             self.inference.update()
@@ -576,28 +588,31 @@ class MPCPolicy(Policy):
         if self.schedule is not None:       # a learnt episode: the rate schedule to V_f, then the hold
             gap = self.schedule["V_f"] - V
             if gap > 1e-9:
-                rate = self.dv_max_V if gap > cfg.learn_margin_V else min(cfg.creep_V, self.dv_max_V)
+                rate = self.dv_max_V if gap > MARGIN_V else min(cfg.creep_V, self.dv_max_V)
                 self.solve_ms.append(1e3 * (time.perf_counter() - start))
                 return min(rate, gap)
             # the hold starts where the learnt episode ended, x_f, with its variance and the path's
             # (half a tolerance: the schedule is not the path that episode took), not from the
             # estimate carried through the fast schedule (it rests on g over a path the filter has
             # not seen); held, the observations refine it
-            x_var = self.schedule["x_var"] + (self.config.learn_path_share * self.tolerance_m) ** 2
+            x_var = self.schedule["x_var"] + (LEARN_PATH_SHARE * self.tolerance_m) ** 2
             x = self.bias.reset(self.schedule["x_f"], self.bias.gain, float(self.bias.P[1, 1]), x_var)
             self.schedule, self.holding = None, True
             self.previous = (x, 0.0, V)
         error = abs(x - self.target_m)
         aim = self._aim(xi0, x, V)
-        if cfg.hold_band > 0:
+        if self.hold_band > 0:
             if self.holding:
-                self.holding = error <= cfg.hold_band * self.tolerance_m + cfg.hold_stds * self.estimate_std_m
+                self.holding = error <= self.hold_band * self.tolerance_m + HOLD_STDS * self.estimate_std_m
             else:
-                self.holding = error < cfg.hold_band * self.tolerance_m
+                self.holding = error < self.hold_band * self.tolerance_m
         if self.holding or self._wait(x, aim):
             self.plan = torch.zeros(1, T, 1, dtype=torch.float64)
             self.solve_ms.append(1e3 * (time.perf_counter() - start))
             return self._recentre(x) if self.holding else 0.0
+        if not self.started and self._below_onset(xi0, x, V):
+            self.solve_ms.append(1e3 * (time.perf_counter() - start))
+            return min(self.plant_dv_max_V, self.v_max_V - V)
         # the model's travel that the plant turns into the remaining distance (1 + g) Δ
         model_target = x + (aim - x) / (1.0 + self.gain_error)
         self.cost = self._cost(model_target)
@@ -628,20 +643,20 @@ class MPCPolicy(Policy):
             # neither holds (nor re-centres) nor moves, and a coin that stands there on a biased
             # estimate stays outside for good (fem:C1, seed 0, the stand-off: 2,500 steps 10.2 µm
             # short with the estimate 7-8 µm off; docs/control.md)
-            band = cfg.hold_band * tolerance if cfg.hold_band > 0 else tolerance
-            stalled = (cfg.unstall and abs(x - model_target) > band and float(self.plan[0, 0, 0]) == 0.0
+            band = self.hold_band * tolerance if self.hold_band > 0 else tolerance
+            stalled = (UNSTALL and abs(x - model_target) > band and float(self.plan[0, 0, 0]) == 0.0
                        and float(sol.x[best, 1, 1]) == 0.0)
         self.solve_ms.append(1e3 * (time.perf_counter() - start))
         dV = float(self.plan[0, 0, 0]) * self.dv_max_V
         creep = min(cfg.creep_V, self.dv_max_V)
-        if cfg.approach_m > 0 and not self._at_reach(xi0, x, V):
+        if self.approach_m > 0 and not self._at_reach(xi0, x, V):
             # slow down near the target: the coin's coast after V stops rising grows with its
             # speed, which f_a (quasi-static tip) does not model
-            limit = max(creep, self.dv_max_V * abs(x - self.target_m) / cfg.approach_m)
+            limit = max(creep, self.dv_max_V * abs(x - self.target_m) / self.approach_m)
             dV = max(-limit, min(limit, dV))
         if stalled:
             dV = creep if x > model_target else -creep
-        if cfg.hold_band > 0 and 0 < abs(dV) < creep:
+        if self.hold_band > 0 and 0 < abs(dV) < creep:
             # outside the hold region a step too small to drag the coin (its slip rate under
             # the friction's regularisation, docs/control.md) would only stall: creep instead
             dV = math.copysign(creep, dV)

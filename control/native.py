@@ -320,7 +320,7 @@ def _predict(fn, rows: list, phys: np.ndarray, derivatives: bool):
 def predictor(capabilities):
     """The compiled prediction of the online inference for a kind with ``capabilities``
     (:func:`coin_predict` or :func:`memory_predict`), or None where the kind has none or no C
-    compiler is at hand (``deapull control --infer-engine native`` checks this before loading)."""
+    compiler is at hand (``deapull control --set mpc.inference.engine=native`` checks this before loading)."""
     if "compiled_mpc_memory" in capabilities:
         return memory_predict if memory_library() is not None else None
     if "compiled_mpc" in capabilities:

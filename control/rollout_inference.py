@@ -1,4 +1,4 @@
-"""Online inference of φ from the whole episode's rollout (output error): ``--infer-loss rollout``.
+"""Online inference of φ from the whole episode's rollout (output error): ``mpc.inference.loss = "rollout"``.
 
 The paper's Algorithm 2 (:mod:`deapull.control.inference`) fits φ to one-step predictions
 x̂_{t+1}(x̃_t, ũ_t, V) from the observed position and a velocity differenced from two noisy
@@ -62,7 +62,7 @@ class RolloutInference:
 
     def __init__(self, model, config: InferenceConfig, dt: float, dv_max_V: float, v_max_V: float, every: int = 10):
         if config.optimizer != "lm":
-            raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps (--infer-optimizer lm), "
+            raise InputError(f"mpc.inference.loss = 'rollout' takes Levenberg-Marquardt steps (optimizer 'lm'), "
                              f"got {config.optimizer!r}")
         if int(every) != every or every < 1:
             raise InputError(f"rollout inference every {every!r}: must be an integer >= 1 (observations)")

@@ -56,20 +56,23 @@ def apply_preset(args, parser) -> None:
     allowed = ", ".join(sorted(actions))
     given = {dest for dest in actions if hasattr(args, dest)}      # the flags on the command line
     settings = {}
+    args.mpc_table = {}
     if args.preset:
         path = preset_path(args.preset)
-        try:
-            table = tomllib.loads(path.read_text()).get("control", {})
-        except tomllib.TOMLDecodeError as err:
-            raise InputError(f"{path}: not valid TOML ({err})") from None
+        document = read_preset(path)
+        table = document.get("control", {})
+        args.mpc_table = document.get("mpc", {})
         for key, value in table.items():
             if key not in actions:
                 raise InputError(f"preset {path.name}: control.{key}: unknown key; allowed: {allowed}")
             if key not in given:
                 settings[key] = _option_value(actions[key], key, value, f"preset {path.name}: control.")
     scene_sets = []
+    args.mpc_table = merge_tables(args.mpc_table, mpc_sets(args.overrides))
     for assignment in args.overrides:
         path, _, text = assignment.partition("=")
+        if path.strip().startswith("mpc."):
+            continue
         if not path.strip().startswith("control."):
             scene_sets.append(assignment)
             continue
@@ -89,6 +92,45 @@ def apply_preset(args, parser) -> None:
                              f"{', '.join(sorted(q.stem for q in PRESET_DIR.glob('*.toml')))})")
 
 
+def read_preset(path: Path) -> dict:
+    """A preset file's tables (``[control]``, ``[mpc]``); anything else exits 2 naming it."""
+    try:
+        document = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise InputError(f"{path}: not valid TOML ({err})") from None
+    stray = [k for k in document if k not in ("control", "mpc")]
+    if stray:
+        raise InputError(f"preset {path.name}: [{stray[0]}]: unknown table; allowed: [control], [mpc]")
+    return document
+
+
+def mpc_sets(overrides) -> dict:
+    """The ``--set mpc.KEY=VALUE`` (``mpc.estimator.KEY``, ``mpc.inference.KEY``) as a nested table."""
+    from deapull.scene import _parse_value
+    table: dict = {}
+    for assignment in overrides:
+        path, _, text = assignment.partition("=")
+        keys = path.strip().split(".")
+        if keys[0] != "mpc":
+            continue
+        if len(keys) < 2 or not all(keys[1:]):
+            raise InputError(f"--set {assignment!r}: expected mpc.KEY=VALUE (deapull control --options lists them)")
+        node = table
+        for key in keys[1:-1]:
+            node = node.setdefault(key, {})
+        node[keys[-1]] = _parse_value(text.strip())
+    return table
+
+
+def merge_tables(base: dict, top: dict) -> dict:
+    """``top`` over ``base``, sub-tables merged key by key."""
+    out = dict(base)
+    for key, value in top.items():
+        out[key] = merge_tables(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) \
+            else value
+    return out
+
+
 def options_text(parser) -> str:
     """Every option of ``deapull control``, the ones --help leaves out too, as a preset key with its help."""
     lines = ["Every option; in a preset (control/presets/*.toml, table [control]) or as --set control.KEY=VALUE:"]
@@ -96,7 +138,24 @@ def options_text(parser) -> str:
         if a.dest in NOT_IN_PRESETS or a.dest == "help":
             continue
         lines.append(f"  {a.dest} (default {a.real_default!r}): {a.full_help}")
+    from deapull.control.mpc_policy import MPCConfig  # lazy: torch loads only here
+    lines.append("The MPC's settings; in a preset's table [mpc] ([mpc.estimator], [mpc.inference]) or as "
+                 "--set mpc.KEY=VALUE (docstring of deapull.control.mpc_policy.MPCConfig):")
+    lines += [f"  mpc.{k} (default {v!r})" for k, v in _flat(MPCConfig()).items()]
     return "\n".join(lines)
+
+
+def _flat(config, prefix: str = "") -> dict:
+    """A config's settings by dotted key (sub-configs expanded)."""
+    from dataclasses import fields, is_dataclass
+    out = {}
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if is_dataclass(value):
+            out.update(_flat(value, f"{prefix}{f.name}."))
+        else:
+            out[f"{prefix}{f.name}"] = value
+    return out
 
 
 def cmd_control(args) -> int:
@@ -118,6 +177,7 @@ def control_config(args):
     """The :class:`~deapull.workflows.control.ControlConfig` of ``deapull control``'s arguments
     (``bench/bench_control_fem.py`` takes the same flags, so it times ``make control-fem``'s own)."""
     from deapull.workflows import control  # lazy: as above
+    from deapull.control.mpc_policy import mpc_config  # lazy: as above
     if args.threads < 1:
         raise InputError(f"--threads {args.threads} must be at least 1")
     return control.ControlConfig(
@@ -127,23 +187,12 @@ def control_config(args):
         out=Path(args.out), episodes=args.episodes, seed=args.seed, dv_max_V=args.dv_max,
         max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm,
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
-        plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_cost=args.mpc_cost,
-        mpc_oracle=args.mpc_oracle, unreachable=args.unreachable, infer_optimizer=args.infer_optimizer,
-        infer_engine=args.infer_engine,
-        infer_loss=args.infer_loss, infer_every=args.infer_every, plant_phi=control.parse_plant_phi(args.plant_phi),
-        infer_fields=None if args.infer_fields is None else tuple(f.strip() for f in args.infer_fields.split(",") if f.strip()),
-        **mpc_settings(args),
-        **({} if args.mpc_recentre is None else {"mpc_recentre": args.mpc_recentre}),
+        plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_phi=args.mpc_phi, phi_prior=args.phi_prior,
+        mpc=mpc_config(getattr(args, "mpc_table", {})), unreachable=args.unreachable,
+        plant_phi=control.parse_plant_phi(args.plant_phi),
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
         save_fem_runs=None if args.save_fem_runs is None else Path(args.save_fem_runs))
-
-
-def mpc_settings(args) -> dict:
-    """The MPC's flags that ``control`` and ``dagger`` share, as :class:`ControlConfig` fields."""
-    return dict(phi_prior=args.phi_prior, mpc_no_infer=args.mpc_no_infer, mpc_approach_m=1e-3 * args.mpc_approach_mm,
-                mpc_max_rate_V=args.mpc_max_rate, mpc_creep_V=args.mpc_creep, mpc_standoff=args.mpc_standoff,
-                mpc_innovation_window=args.mpc_innovation_window, mpc_reach_gate=not args.mpc_no_reach_gate)
 
 
 def parse_setpoints(text: str) -> list[float]:
@@ -199,63 +248,18 @@ def register(sub) -> None:
                    help="surrogate plant model folder; {setup} -> C1, {n} -> 1 (default out/models/fs{n})")
     p.add_argument("--mpc-model", default="out/models/fa",
                    help="the MPC's model f_a, f-coulomb or f trained on C3..C8 (default out/models/fa)")
-    p.add_argument("--mpc-cost", default="scaled",
-                   help="the MPC's cost: scaled (default) or paper (1e-3 V^2 beside (x - x^T)^2 in SI)")
-    p.add_argument("--mpc-approach-mm", type=float, default=0.0,
-                   help="the offset-free MPC slows down within this distance of the target (mm): |dV| <= dV_max * "
-                        "distance / approach, so the coin does not coast past (default 0: no limit)")
-    p.add_argument("--mpc-max-rate", type=float, default=0.0,
-                   help="ramp-rate-aware MPC: at most this |dV| per step (V), in its plan and on the plant; a "
-                        "slow push carries a heavy coin further (e.g. 0.4, the sweep's 0-400 V in 1 s; default 0: "
-                        "--dv-max)")
     p.add_argument("--unreachable", default="refuse", choices=("refuse", "report"),
                    help="a plant that cannot take the coin to the task (FEM: its dataset's ramp; surrogate: the "
                         "fastest push): refuse the run (exit 2, default) or report it as unreachable in the "
                         "table and run the other plants")
-    p.add_argument("--mpc-creep", type=float, default=0.5,
-                   help="the MPC's smallest |dV| per step outside the hold (V; default 0.5, capped by the rate); below "
-                        "it --mpc-approach-mm can slow the last stretch, e.g. 0.1 with --mpc-approach-mm 0.05")
-    p.add_argument("--mpc-standoff", type=float, default=0.0,
-                   help="under noise the MPC stops this many stds of its position estimate short of the target and "
-                        "holds V until the observations have averaged the estimate down, then goes on (default 0: "
-                        "off; e.g. 2)")
-    p.add_argument("--mpc-no-reach-gate", action="store_true",
-                   help="keep the stand-off and the approach taper even where f_a says the target lies at the edge "
-                        "of the coin's reach (by default they give way there); for a plant that goes further than "
-                        "f_a at the planning φ, e.g. the surrogates at 5 V per step (docs/control.md)")
-    p.add_argument("--mpc-innovation-window", type=int, default=0,
-                   help="the MPC's bias filter checks the mean of its last N innovations against its own std and, "
-                        "where they disagree (a model error the gain does not take up, e.g. the release on the "
-                        "FEM), lets the estimate follow the observations (default 0: off; e.g. 25)")
-    p.add_argument("--mpc-recentre", type=float, default=None,
-                   help="while holding, the MPC steps V by --mpc-creep toward the target at every step its "
-                        "estimate stands off the target by more than this many of its stds and 0.3 x the tolerance "
-                        "(default 1.5; 0: off)")
-    p.add_argument("--mpc-no-infer", action="store_true",
-                   help="the MPC plans with the coin-family prior's median and infers nothing (needs --phi-prior "
-                        "coins): the fixed prior that the online inference is compared with")
-    p.add_argument("--mpc-oracle", action="store_true",
-                   help="the MPC plans with the plant's true coin instead of inferring it online")
+    p.add_argument("--mpc-phi", default="infer", choices=("infer", "prior", "oracle"),
+                   help="where the MPC's coin comes from: infer (online, mpc.inference; default), prior (the "
+                        "coin-family prior's median, inferring nothing; needs --phi-prior coins) or oracle (the "
+                        "plant's true coin)")
     p.add_argument("--phi-prior", default="none",
                    help="the MPC's online inference: none (maximum likelihood, the paper's Algorithm 2; default) "
                         "or coins (MAP with a log-normal prior over the design card's coin family, a factor 2 "
                         "wide: control.inference.COIN_PRIOR) or family (the design's coins at ±1 std: family_prior())")
-    p.add_argument("--infer-optimizer", default="lm", choices=("lm", "adam"),
-                   help="the online inference's optimiser: lm (Levenberg-Marquardt, default) or adam (the paper's "
-                        "Adam, Algorithm 2)")
-    p.add_argument("--infer-engine", default="auto", choices=("auto", "native", "torch"),
-                   help="where the one-step inference evaluates f_a and its Jacobian in φ: native (compiled, "
-                        "f-coulomb and f-memory), torch (autograd through the model), auto (native where "
-                        "available; default). The same estimates to round-off")
-    p.add_argument("--infer-loss", default="step", choices=("step", "rollout"),
-                   help="what φ is fitted to: step (the paper's one-step predictions from the observed state, "
-                        "default) or rollout (f_a's open-loop rollout of the whole episode against every observed "
-                        "position: no noise in the model's inputs; docs/control.md)")
-    p.add_argument("--infer-fields", default=None, metavar="FIELD,...",
-                   help="the fields of φ to infer (mass_kg, mu_b, mu_t; default all the model uses); the rest are "
-                        "planned at the prior's median (with --phi-prior coins)")
-    p.add_argument("--infer-every", type=int, default=10, metavar="N",
-                   help="--infer-loss rollout: control steps between updates (default 10)")
     p.add_argument("--sac-dir", default="out/models/sac{n}",
                    help="trained SAC policy folder; trained there on the surrogate plant when absent "
                         "(default out/models/sac{n})")
@@ -287,11 +291,17 @@ def dagger_config(args):
     """The :class:`~deapull.workflows.dagger.DaggerConfig` of ``deapull dagger``'s arguments."""
     from deapull.workflows import control, dagger  # lazy: torch and gymnasium load only when a run starts
     from deapull.surrogate.data import parse_setups  # lazy: as above
+    from deapull.control.mpc_policy import mpc_config  # lazy: as above
+    preset = read_preset(preset_path(args.preset))
+    table = preset.get("control", {})
     settings = control.ControlConfig(
         policies=["mpc"], plants=control.parse_plants(args.plant, args.scene), noises=control.parse_noises(args.noise),
         out=Path(args.out), episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, hold_steps=args.hold,
-        target_m=1e-3 * args.target_mm, data=Path(args.data), **mpc_settings(args),
-        scene=args.scene, overrides=overrides_of(args), progress=False)
+        target_m=1e-3 * args.target_mm, data=Path(args.data),
+        mpc_phi=table.get("mpc_phi", "infer"), phi_prior=table.get("phi_prior", "none"),
+        mpc=mpc_config(merge_tables(preset.get("mpc", {}), mpc_sets(args.overrides))),
+        scene=args.scene, overrides=[o for o in overrides_of(args) if not o.strip().startswith("mpc.")],
+        progress=False)
     return dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
                                val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
                                kind=args.model_kind,
@@ -320,26 +330,12 @@ def register_dagger(sub) -> None:
     p.add_argument("--train", default="C3,C4,C5,C6,C7", help="ramps f_a trains on (default C3..C7)")
     p.add_argument("--val", default="C8", help="ramp that early-stops every training (default C8)")
     p.add_argument("--mpc-model", default=None, help="f_a of round 0 (default: trained here on the ramps)")
-    p.add_argument("--mpc-max-rate", type=float, default=0.4,
-                   help="the MPC's |dV| per step (V; default 0.4, as make control-fem; see deapull control --help)")
-    p.add_argument("--mpc-approach-mm", type=float, default=0.1,
-                   help="the MPC's approach limit (mm; default 0.1, as make control-fem; see deapull control --help)")
-    p.add_argument("--mpc-creep", type=float, default=0.1,
-                   help="the MPC's smallest |dV| per step (V; default 0.1, as make control-fem)")
+    p.add_argument("--preset", default="fem",
+                   help="the control preset whose MPC runs each round (its [mpc] table, mpc_phi and phi_prior; "
+                        "default fem, as make control PRESET=fem); --set mpc.KEY=VALUE changes one setting")
     p.add_argument("--model-kind", default=None,
                    help="f_a's kind, retrained every round: f-coulomb or f-memory (default: --mpc-model's kind, "
                         "else f-coulomb)")
-    p.add_argument("--phi-prior", default="coins",
-                   help="the MPC's inference prior: none, coins (default; a factor 2 around the coin family) or "
-                        "family (the design's coins at ±1 std)")
-    p.add_argument("--mpc-no-infer", action="store_true",
-                   help="plan with the coin prior's median, no online inference")
-    p.add_argument("--mpc-standoff", type=float, default=0.0, help="the MPC's stand-off (stds; default 0)")
-    p.add_argument("--mpc-innovation-window", type=int, default=0,
-                   help="the bias filter's innovation check over the last N steps (default 0: off; make "
-                        "control-fem uses 25; see deapull control --help)")
-    p.add_argument("--mpc-no-reach-gate", action="store_true",
-                   help="keep the stand-off and the taper at the edge of the reach (see deapull control --help)")
     p.add_argument("--max-steps", type=int, default=3000, help="steps before an episode counts as failed (3000)")
     p.add_argument("--hold", type=int, default=100, help="steps held after the first success (100)")
     p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position (mm; default -1)")
@@ -348,5 +344,6 @@ def register_dagger(sub) -> None:
     p.add_argument("--scene", default="coin_pull", help="scene of the FEM plant (coin_pull)")
     add_fidelity_arg(p)
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override one key of the FEM plant's scene; repeatable")
+                   help="mpc.KEY=VALUE: one MPC setting (deapull control --options lists them); any other "
+                        "section: one key of the FEM plant's scene; repeatable")
     p.set_defaults(func=cmd_dagger)

@@ -39,10 +39,9 @@ from tqdm import tqdm
 
 from deapull import provenance
 from deapull import scene as scenes
-from deapull.control.dynamics import COSTS
 from deapull.control.harness import PHI_FIELDS, Bench, Episode, Task, run_episode
-from deapull.control.inference import COIN_PRIOR, ENGINES as INFER_ENGINES, PRIOR_NAMES, InferenceConfig, named_prior
-from deapull.control.mpc_policy import INFER_LOSSES, MPCConfig
+from deapull.control.inference import COIN_PRIOR, PRIOR_NAMES, InferenceConfig, named_prior
+from deapull.control.mpc_policy import MPCConfig
 from deapull.control.policies import SAC_FILE
 from deapull.surrogate import store
 from deapull.surrogate.data import load_setup
@@ -59,6 +58,8 @@ PLANT_KINDS = ("surrogate", "fem")
 #: the choices of `--phi-prior`: maximum likelihood (the paper), control.inference.COIN_PRIOR (a factor 2
 #: around the family) or family_prior() (the design's coins at ±1 std)
 PHI_PRIORS = PRIOR_NAMES
+#: where the MPC's φ comes from (:attr:`ControlConfig.mpc_phi`)
+MPC_PHI = ("infer", "prior", "oracle")
 COLUMNS = ("policy", "plant", "setup", "episode", "seed", "noise_std_m", "dv_max_V", "step_limit", "hold_steps",
            "setpoints_mm", "setpoints_reached", "setpoints_settled", "iterations_per_setpoint",
            "iterations_to_target", "reached", "settled", "overshoot_m", "hold_inside_fraction",
@@ -108,24 +109,14 @@ class ControlConfig:
     data: Path = Path("data")
     plant_model: str = "out/models/fs{n}"
     mpc_model: str = "out/models/fa"
-    mpc_cost: str = "scaled"
-    mpc_oracle: bool = False
-    mpc_no_infer: bool = False
-    mpc_approach_m: float = 0.0
-    mpc_max_rate_V: float = 0.0
-    mpc_creep_V: float = MPCConfig.creep_V
-    mpc_standoff: float = 0.0
-    mpc_innovation_window: int = 0
-    mpc_reach_gate: bool = True
-    mpc_recentre: float = MPCConfig.recentre_stds
-    mpc_learn: bool = MPCConfig.learn
+    #: where the MPC's φ comes from: "infer" (online, :attr:`MPCConfig.inference`), "prior" (the
+    #: prior's median, inferring nothing) or "oracle" (the plant's true coin)
+    mpc_phi: str = "infer"
+    #: the inference's prior by name (:data:`~deapull.control.inference.PRIOR_NAMES`)
     phi_prior: str = "none"
-    infer_optimizer: str = "lm"
-    infer_engine: str = "auto"
-    infer_loss: str = "step"
-    infer_every: int = 10
+    #: the MPC's settings (a preset's [mpc] table, --set mpc.KEY=VALUE)
+    mpc: MPCConfig = field(default_factory=MPCConfig)
     plant_phi: dict | None = None
-    infer_fields: tuple | None = None
     sac_dir: str = "out/models/sac{n}"
     sac_steps: int = 30000
     scene: str = "coin_pull"
@@ -221,37 +212,23 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
                 raise InputError(f"--data {str(config.data)!r}: {spec.setup}.nc not found (the plant's coin φ "
                                  f"is read from it)")
     if any(p.startswith("mpc") for p in config.policies):
-        if config.mpc_cost not in COSTS:
-            raise InputError(f"--mpc-cost {config.mpc_cost!r}: choose one of {', '.join(COSTS)}")
-        if not (math.isfinite(config.mpc_standoff) and config.mpc_standoff >= 0):
-            raise InputError(f"--mpc-standoff {config.mpc_standoff!r}: must be a finite number >= 0 (stds)")
-        if config.mpc_innovation_window < 0:
-            raise InputError(f"--mpc-innovation-window {config.mpc_innovation_window!r}: must be an integer >= 0 "
-                             f"(steps; 0: off)")
-        if not (math.isfinite(config.mpc_recentre) and config.mpc_recentre >= 0):
-            raise InputError(f"--mpc-recentre {config.mpc_recentre!r}: must be a finite number >= 0 (stds; 0: off)")
-        if not (math.isfinite(config.mpc_max_rate_V) and config.mpc_max_rate_V >= 0):
-            raise InputError(f"--mpc-max-rate {config.mpc_max_rate_V!r}: must be a finite number >= 0 (V per step)")
-        if not (math.isfinite(config.mpc_creep_V) and config.mpc_creep_V > 0):
-            raise InputError(f"--mpc-creep {config.mpc_creep_V!r}: must be a finite number > 0 (V per step)")
-        if not (math.isfinite(config.mpc_approach_m) and config.mpc_approach_m >= 0):
-            raise InputError(f"--mpc-approach-mm {1e3 * config.mpc_approach_m!r}: must be a finite number >= 0 (mm)")
-        if config.mpc_no_infer and (config.phi_prior != "coins" or config.mpc_oracle):
-            raise InputError("--mpc-no-infer plans with the prior's median: it needs --phi-prior coins and no "
-                             "--mpc-oracle")
+        if config.mpc_phi not in MPC_PHI:
+            raise InputError(f"control.mpc_phi = {config.mpc_phi!r}: choose one of {', '.join(MPC_PHI)}")
+        if config.mpc_phi == "prior" and config.phi_prior != "coins":
+            raise InputError("control.mpc_phi = 'prior' plans with the prior's median: it needs --phi-prior coins")
         if config.phi_prior not in PHI_PRIORS:
             raise InputError(f"--phi-prior {config.phi_prior!r}: choose one of {', '.join(PHI_PRIORS)}")
         if mpc_model_trained:
             _require_model(Path(config.mpc_model), "--mpc-model")
-            if not (config.mpc_oracle or config.mpc_no_infer):
-                _require_inference(Path(config.mpc_model), config.infer_engine)
+            if config.mpc_phi == "infer":
+                _require_inference(Path(config.mpc_model), config.mpc.inference.engine)
     return unreachable
 
 
 def _require_inference(folder: Path, engine: str = "auto") -> None:
     """The MPC infers φ online with its own f_a: refuse a kind that cannot before any
     model is loaded, naming the options that plan with a given φ instead; with
-    ``--infer-engine native``, refuse a kind without a compiled inference (or no C compiler)."""
+    ``mpc.inference.engine = "native"``, refuse a kind without a compiled inference (or no C compiler)."""
     from deapull.control import native
     from deapull.surrogate import store
     from deapull.surrogate.models import registry
@@ -259,12 +236,12 @@ def _require_inference(folder: Path, engine: str = "auto") -> None:
     cls = registry.KINDS.get(kind)
     if cls is not None and "infer" not in cls.capabilities:
         raise InputError(f"--mpc-model {str(folder)!r}: its kind {kind!r} cannot infer φ online (capability "
-                         f"'infer'); plan with a given φ: --mpc-no-infer --phi-prior coins (the prior's median) "
-                         f"or --mpc-oracle (the plant's true φ)")
+                         f"'infer'); plan with a given φ: --set control.mpc_phi=prior --phi-prior coins (the "
+                         f"prior's median) or --set control.mpc_phi=oracle (the plant's true φ)")
     if engine == "native" and cls is not None and native.predictor(cls.capabilities) is None:
-        raise InputError(f"--infer-engine native: the kind {kind!r} of --mpc-model {str(folder)!r} has no compiled "
+        raise InputError(f"mpc.inference.engine = 'native': the kind {kind!r} of --mpc-model {str(folder)!r} has no compiled "
                          f"inference here (f-coulomb and f-memory have one where a C compiler is at hand and "
-                         f"DEAPULL_NATIVE is not 0); use --infer-engine auto or torch")
+                         f"DEAPULL_NATIVE is not 0); use engine auto or torch")
 
 
 def check_fem(config: ControlConfig) -> dict:
@@ -350,20 +327,14 @@ def check_plant_phi(config: ControlConfig) -> None:
 
 
 def check_inference(config: ControlConfig) -> None:
-    """``--infer-loss``, ``--infer-every``, ``--infer-fields`` (cheap: before any folder is looked at)."""
-    if config.infer_loss not in INFER_LOSSES:
-        raise InputError(f"--infer-loss {config.infer_loss!r}: choose one of {', '.join(INFER_LOSSES)}")
-    if int(config.infer_every) != config.infer_every or config.infer_every < 1:
-        raise InputError(f"--infer-every {config.infer_every!r}: must be an integer >= 1 (control steps)")
-    unknown = [f for f in config.infer_fields or () if f not in PLANT_PHI_FIELDS]
-    if unknown or (config.infer_fields is not None and not config.infer_fields):
-        raise InputError(f"--infer-fields {','.join(config.infer_fields or ())!r}: choose one or more of "
+    """``mpc.inference.fields`` (cheap: before any folder is looked at; the rest is checked where
+    :class:`InferenceConfig` is made)."""
+    inference = config.mpc.inference
+    chosen = None if inference is None else inference.fields
+    unknown = [f for f in chosen or () if f not in PLANT_PHI_FIELDS]
+    if unknown or (chosen is not None and not chosen):
+        raise InputError(f"mpc.inference.fields = {list(chosen or ())!r}: choose one or more of "
                          f"{', '.join(PLANT_PHI_FIELDS)} (the rest stay at the prior's median)")
-    if config.infer_engine not in INFER_ENGINES:
-        raise InputError(f"--infer-engine {config.infer_engine!r}: choose one of {', '.join(INFER_ENGINES)}")
-    if config.infer_loss == "rollout" and config.infer_optimizer != "lm":
-        raise InputError(f"--infer-loss rollout takes Levenberg-Marquardt steps: --infer-optimizer lm, not "
-                         f"{config.infer_optimizer!r}")
 
 
 def task_of(config: ControlConfig) -> Task:
@@ -380,7 +351,7 @@ def resolve(config: ControlConfig) -> Bench:
     surrogate_dirs = {spec.setup: config.folder(config.plant_model, spec.setup)
                       for spec in config.plants if _needs_surrogate(config, spec)}
     sac_dirs = {spec.setup: config.folder(config.sac_dir, spec.setup) for spec in config.plants}
-    mpc = {name: mpc_settings(config, filter="kf" if name == "mpc+kf" else "none")
+    mpc = {name: mpc_settings(config, name)
            for name in config.policies if name.startswith("mpc")}
     mpc_dir = Path(config.mpc_model)
     folders = [*surrogate_dirs.values(), *([mpc_dir] if mpc else [])]
@@ -393,34 +364,25 @@ def resolve(config: ControlConfig) -> Bench:
                   for spec in config.plants if spec.kind == "fem"}
     mpc_model = models[mpc_dir] if mpc else None
     fixed_phi = None
-    if mpc and config.mpc_no_infer:         # the fixed prior: what inference is measured against
+    if mpc and config.mpc_phi == "prior":   # the fixed prior: what inference is measured against
         fixed_phi = Phi(**{f: COIN_PRIOR[f][0] for f in mpc_model.phi_fields if f in COIN_PRIOR})
     return Bench(task, surrogates, fem_scenes, config.out / "fem", sac_dirs, config.sac_steps, seed=config.seed,
                  progress=config.progress, mpc_model=mpc_model, mpc_settings=mpc, mpc_phi=fixed_phi,
-                 mpc_oracle=config.mpc_oracle)
+                 mpc_oracle=config.mpc_phi == "oracle")
 
 
-def mpc_settings(config: ControlConfig, filter: str = "none") -> MPCConfig:
-    """The MPC's settings (:mod:`deapull.control.mpc_policy`) with f_a from ``--mpc-model``: φ
-    inferred online, or given (``--mpc-oracle``: the plant's true φ; ``--mpc-no-infer``: the
-    prior's median); ``filter="kf"``: from a Kalman estimate of the position (``mpc+kf``)."""
-    prior = named_prior(config.phi_prior)
-    # mpc: offset-free (gain-error filter, hold inside the window); mpc+kf: the earlier MPC on a
-    # position-only Kalman estimate, kept to measure what the offset-free parts add
-    plain = filter == "kf"
-    return MPCConfig(cost=config.mpc_cost, infer=not (config.mpc_oracle or config.mpc_no_infer), filter=filter,
-                     offset_free=not plain, hold_band=0.0 if plain else MPCConfig.hold_band,
-                     approach_m=0.0 if plain else config.mpc_approach_m,
-                     max_rate_V=0.0 if plain else config.mpc_max_rate_V, creep_V=config.mpc_creep_V,
-                     standoff_stds=0.0 if plain else config.mpc_standoff,
-                     innovation_window=0 if plain else config.mpc_innovation_window,
-                     reach_gate=config.mpc_reach_gate,
-                     recentre_stds=0.0 if plain else config.mpc_recentre,
-                     learn=config.mpc_learn and not plain,
-                     inference=InferenceConfig(optimizer=config.infer_optimizer, prior=prior,
-                                               engine=config.infer_engine,
-                                               fields=config.infer_fields),
-                     infer_loss=config.infer_loss, infer_every=config.infer_every)
+def mpc_settings(config: ControlConfig, name: str = "mpc") -> MPCConfig:
+    """The settings of the MPC policy ``name`` (:mod:`deapull.control.mpc_policy`): ``config.mpc``,
+    its inference on with the named prior where φ is inferred (``mpc_phi = "infer"``) and off
+    otherwise; ``mpc+kf``: the plain MPC on a position-only Kalman estimate, kept to measure what
+    the offset-free estimator and the terminal policy add."""
+    mpc = config.mpc
+    if name == "mpc+kf":
+        mpc = replace(mpc, estimator=replace(mpc.estimator, kind="kf"))
+    inference = None
+    if config.mpc_phi == "infer":
+        inference = replace(mpc.inference or InferenceConfig(optimizer="lm"), prior=named_prior(config.phi_prior))
+    return replace(mpc, inference=inference)
 
 
 # --- the experiment ------------------------------------------------------------------------

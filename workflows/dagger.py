@@ -51,7 +51,7 @@ class DaggerConfig:
     plants); its ``mpc_model``, ``out``, ``save_fem_runs`` and ``run_tag`` are set per round.
     ``kind`` is f_a's model kind, retrained every round: None means the kind of ``model`` when
     one is given, else f-coulomb. A kind that cannot infer φ online (capability ``infer``) plans
-    with the prior's median: it needs ``control.mpc_no_infer``.
+    with the prior's median: it needs ``control.mpc_phi = "prior"``.
     """
 
     control: object
@@ -85,10 +85,10 @@ def check(config: DaggerConfig) -> None:
     if given is not None and given != kind:
         raise InputError(f"--model-kind {kind!r} but --mpc-model {str(config.model)!r} is {given!r}: every round "
                          f"retrains the same kind")
-    if "infer" not in cls.capabilities and not (config.control.mpc_no_infer or config.control.mpc_oracle):
+    if "infer" not in cls.capabilities and config.control.mpc_phi == "infer":
         source = "--model-kind" if config.kind is not None else f"the kind of --mpc-model {str(config.model)!r}"
-        raise InputError(f"f_a's kind {kind!r} ({source}) cannot infer the coin online: add --mpc-no-infer (plan "
-                         f"with the prior's median)")
+        raise InputError(f"f_a's kind {kind!r} ({source}) cannot infer the coin online: plan with the prior's "
+                         f"median (a --preset with control.mpc_phi = 'prior', e.g. fem)")
     if int(config.rounds) != config.rounds or config.rounds < 1:
         raise InputError(f"--rounds {config.rounds!r}: must be an integer >= 1")
     if int(config.epochs) != config.epochs or config.epochs < 1:

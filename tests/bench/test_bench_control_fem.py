@@ -38,7 +38,7 @@ def dry_run(target: str, *variables: str, program: str, first: str | None = None
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
 def test_the_bench_runs_make_control_fems_mpc_on_the_plants_asked_for():
-    """Broken once: the bench's recipe given its own --mpc-standoff 0 after the preset (the
+    """Broken once: the bench's recipe given its own stand-off 0 after the preset (the
     stand-off then differs: 0.0 against 2.0)."""
     mod = bench()
     timed = mod.config_of(dry_run("bench", "BENCH=control-fem", "FEM_PLANTS=C1,C3", program="bench_control_fem.py"))
@@ -47,7 +47,7 @@ def test_the_bench_runs_make_control_fems_mpc_on_the_plants_asked_for():
     differ = {f.name: (getattr(timed, f.name), getattr(run, f.name)) for f in dataclasses.fields(timed)
               if getattr(timed, f.name) != getattr(run, f.name)}
     assert set(differ) == {"plants", "out"}, differ
-    assert timed.mpc_standoff == 2.0 and timed.mpc_no_infer and timed.mpc_max_rate_V == 0.4   # the fem preset
+    assert timed.mpc.standoff_stds == 2.0 and timed.mpc_phi == "prior" and timed.mpc.rate_V == 0.4   # the fem preset
 
 
 @pytest.mark.parametrize("argv, named", [

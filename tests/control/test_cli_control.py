@@ -50,12 +50,14 @@ def test_bad_arguments_exit_2_with_one_line_naming_them_before_any_work(base, tm
 
 @pytest.mark.parametrize("change, named", [
     (["--mpc-model", "{tmp}/nowhere"], "--mpc-model"),
-    (["--mpc-cost", "lavish"], "--mpc-cost 'lavish'"),
+    (["--set", "mpc.cost='lavish'"], "mpc.cost = 'lavish'"),
     (["--phi-prior", "flat"], "--phi-prior 'flat'"),
-    (["--mpc-max-rate", "nan"], "--mpc-max-rate nan"),
-    (["--mpc-creep", "0"], "--mpc-creep 0"),
-    (["--mpc-recentre", "-1"], "--mpc-recentre -1"),
-    (["--mpc-innovation-window", "-5"], "--mpc-innovation-window -5"),
+    (["--set", "mpc.rate_V=nan"], "mpc.rate_V = nan"),
+    (["--set", "mpc.creep_V=0"], "mpc.creep_V = 0"),
+    (["--set", "mpc.recentre=1"], "mpc.recentre: unknown key"),
+    (["--set", "mpc.estimator.innovation_window=-5"], "mpc.estimator.innovation_window = -5"),
+    (["--set", "mpc.inference.loss='roll'"], "mpc.inference.loss = 'roll'"),
+    (["--set", "mpc.standoff_stds=two"], "mpc.standoff_stds = 'two': expected float"),
 ])
 def test_bad_mpc_arguments_exit_2(base, tmp_path, capsys, fs1_dir, change, named):
     argv = [*base, "--policy", "mpc", "--mpc-model", str(fs1_dir)] + [c.replace("{tmp}", str(tmp_path)) for c in change]
@@ -190,93 +192,42 @@ def test_the_papers_adam_and_lm_are_both_reachable_from_the_cli(base, tmp_path, 
     for optimizer in ("adam", "lm"):
         out = tmp_path / optimizer
         argv = [*base, "--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3",
-                "--hold", "0", "--target-mm", "-0.4", "--infer-optimizer", optimizer, "--out", str(out)]
+                "--hold", "0", "--target-mm", "-0.4", "--set", f"mpc.inference.optimizer='{optimizer}'", "--out",
+                str(out)]
         assert main(argv) == 0
-        assert json.loads((out / "run.json").read_text())["config"]["infer_optimizer"] == optimizer
-    with pytest.raises(SystemExit) as bad:                 # argparse: exit 2 naming the choices
-        main([*base, "--policy", "mpc", "--infer-optimizer", "sgd"])
-    assert bad.value.code == 2 and "--infer-optimizer" in capsys.readouterr().err
-
-
-@pytest.mark.fem      # the FEM plant's check needs dolfinx
-def test_a_target_beyond_the_fem_plants_dataset_exits_2_before_any_mesh(tmp_path, sweep_dir, capsys):
-    """The FEM plant's reach is its own dataset's travel (the fixture's C1: ~0.65 mm): −5 mm is
-    refused naming the dataset, before the plant's mesh is made. Broken once: the check
-    skipped for FEM plants (the run then started meshing)."""
-    out = tmp_path / "out"
-    argv = ["control", "--policy", "heur", "--plant", "fem:C1", "--data", str(sweep_dir), "--target-mm", "-5",
-            "--out", str(out), "--no-progress", *[a for s in TINY_MESH for a in ("--set", s)]]
-    assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert "--target-mm -5" in err and "cannot reach it" in err and "C1.nc" in err
-    assert not (out / "fem").exists()
-
-
-@pytest.mark.fem      # the FEM plant's check needs dolfinx
-def test_an_unreachable_fem_plant_is_reported_and_the_others_run(tmp_path, sweep_dir, capsys):
-    """``--unreachable report``: fem:C5 (the fixture's ramp takes its coin 0.48 mm) cannot reach
-    −0.6 mm, so it is a table row "unreachable" with no episode and no mesh, while fem:C3 (0.69 mm)
-    runs; with every plant beyond reach the run still exits 2. Broken once: the unreachable plant
-    kept in the loop (its mesh was made and its episode run)."""
-    out = tmp_path / "out"
-    argv = ["control", "--policy", "heur", "--plant", "fem:C3,fem:C5", "--episodes", "1", "--data", str(sweep_dir), "--target-mm",
-            "-0.6", "--max-steps", "3", "--hold", "0", "--unreachable", "report", "--out", str(out), "--no-progress",
-            *[a for s in TINY_MESH for a in ("--set", s)]]
-    assert main(argv) == 0
-    rows = {r["plant"]: r for r in _rows(out / "control.csv")}
-    assert rows["fem:C5"]["status"].startswith("unreachable: --target-mm -0.6: fem:C5 cannot reach it")
-    assert rows["fem:C5"]["reached"] == "False" and rows["fem:C5"]["steps_run"] == "0"
-    assert rows["fem:C3"]["status"] == "ok" and int(rows["fem:C3"]["steps_run"]) > 0
-    assert not (out / "fem" / "C5").exists() and (out / "fem" / "C3").exists()
-    assert "| unreachable |" in (out / "table.md").read_text()
-    argv[argv.index("fem:C3,fem:C5")] = "fem:C5"
-    assert main(argv) == 2 and "no plant can reach the task" in capsys.readouterr().err
-
-
-def test_the_multi_setpoint_task_from_the_cli(base, tmp_path, fs1_dir, capsys):
-    """``--setpoints-mm=-0.2,-0.4,-0.3`` (push, push, pull back on the fixture's surrogate): the
-    CSV has one row per episode with each setpoint's iterations and the counts, the table a
-    setpoints column; a setpoint that is not a number exits 2 naming it."""
-    argv = base + ["--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "800",
-                   "--hold", "50", "--setpoints-mm=-0.2,-0.4,-0.3"]
-    assert main(argv) == 0
-    (row,) = _rows(tmp_path / "out" / "control.csv")
-    assert row["setpoints_mm"] == "-0.2;-0.4;-0.3" and row["setpoints_reached"] == "3"
-    assert len(row["iterations_per_setpoint"].split(";")) == 3 and row["settled"] in ("True", "False")
-    assert "| -0.2;-0.4;-0.3 |" in (tmp_path / "out" / "table.md").read_text()
-    capsys.readouterr()
-    assert main(base + ["--policy", "pd", "--setpoints-mm=-0.2,far"]) == 2
-    assert "--setpoints-mm 'far'" in capsys.readouterr().err
+        assert json.loads((out / "run.json").read_text())["config"]["mpc"]["inference"]["optimizer"] == optimizer
+    assert main([*base, "--policy", "mpc", "--set", "mpc.inference.optimizer='sgd'", "--out", str(tmp_path / "x")]) == 2
+    assert "inference optimizer 'sgd'" in capsys.readouterr().err
 
 
 def test_the_fixed_prior_mpc_infers_nothing_and_needs_the_prior(base, tmp_path, fs1_dir, capsys):
-    """``--mpc-no-infer`` plans with the coin-family prior's median (what the inference is
+    """``--mpc-phi prior`` plans with the coin-family prior's median (what the inference is
     compared with): its episodes carry no inferred φ; without ``--phi-prior coins`` it exits 2
     naming both options."""
     argv = base + ["--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3", "--hold",
                    "0", "--target-mm", "-0.4"]
-    assert main(argv + ["--phi-prior", "coins", "--mpc-no-infer"]) == 0
+    assert main(argv + ["--phi-prior", "coins", "--set", "control.mpc_phi='prior'"]) == 0
     (row,) = _rows(tmp_path / "out" / "control.csv")
     assert row["inferred_mass_kg"] == "" and row["inference_ms_per_iteration"] == ""
     capsys.readouterr()
-    assert main(argv + ["--mpc-no-infer"]) == 2
+    assert main(argv + ["--set", "control.mpc_phi='prior'"]) == 2
     err = capsys.readouterr().err
-    assert "--mpc-no-infer" in err and "--phi-prior coins" in err
+    assert "mpc_phi = 'prior'" in err and "--phi-prior coins" in err
 
 
-def test_the_reach_gate_flag_reaches_the_run(base, tmp_path, fs1_dir):
-    """``--mpc-no-reach-gate`` switches the gate off in the run (run.json names it); without it the
-    gate is on. The policy's side is tested in tests/control/test_mpc.py. Broken once (the flag not
-    passed to the config): run.json said true."""
+def test_the_reach_gate_setting_reaches_the_run(base, tmp_path, fs1_dir):
+    """``--set mpc.reach_gate=false`` switches the gate off in the run (run.json names it); without it
+    the gate is on. The policy's side is tested in tests/control/test_mpc.py. Broken once (the setting
+    not passed to the config): run.json said true."""
     argv = base + ["--policy", "mpc", "--mpc-model", str(fs1_dir), "--episodes", "1", "--max-steps", "3", "--hold",
                    "0", "--target-mm", "-0.4"]
-    for flags, gate in (([], True), (["--mpc-no-reach-gate"], False)):
+    for flags, gate in (([], True), (["--set", "mpc.reach_gate=false"], False)):
         assert main(argv + flags) == 0
-        assert json.loads((tmp_path / "out" / "run.json").read_text())["config"]["mpc_reach_gate"] is gate
+        assert json.loads((tmp_path / "out" / "run.json").read_text())["config"]["mpc"]["reach_gate"] is gate
 
 
 def test_the_inference_engine_is_chosen_from_the_cli(base, tmp_path, trained, monkeypatch, capsys):
-    """``--infer-engine torch|native`` reaches the MPC's inference (the same estimates either way);
+    """``mpc.inference.engine`` torch|native reaches the MPC's inference (the same estimates either way);
     ``native`` with a kind that has no compiled inference (the paper's law) exits 2 before any
     model loads, naming the flag. Broken once (then restored): ``mpc_settings`` not passing the
     engine on; the spy saw "auto" for both runs and the test failed."""
@@ -293,10 +244,10 @@ def test_the_inference_engine_is_chosen_from_the_cli(base, tmp_path, trained, mo
     for engine in ("torch", "native"):
         out = tmp_path / engine
         argv = [*base, "--policy", "mpc", "--mpc-model", base[base.index("--plant-model") + 1], "--episodes", "1",
-                "--max-steps", "120", "--hold", "0", "--target-mm", "-0.4", "--infer-engine", engine, "--out",
-                str(out)]
+                "--max-steps", "120", "--hold", "0", "--target-mm", "-0.4", "--set", f"mpc.inference.engine='{engine}'",
+                "--out", str(out)]
         assert main(argv) == 0
-        assert json.loads((out / "run.json").read_text())["config"]["infer_engine"] == engine
+        assert json.loads((out / "run.json").read_text())["config"]["mpc"]["inference"]["engine"] == engine
         rows[engine] = _rows(out / "control.csv")[0]
     assert seen == ["torch", "native"]
     assert rows["torch"]["final_x_m"] == rows["native"]["final_x_m"]
@@ -306,9 +257,10 @@ def test_the_inference_engine_is_chosen_from_the_cli(base, tmp_path, trained, mo
     result = trained("f")
     paper = store.save(result.model, tmp_path / "paper_f", result.summary(), result.history)
     out = tmp_path / "refused"
-    argv = [*base, "--policy", "mpc", "--mpc-model", str(paper), "--infer-engine", "native", "--out", str(out)]
+    argv = [*base, "--policy", "mpc", "--mpc-model", str(paper), "--set", "mpc.inference.engine='native'", "--out",
+            str(out)]
     assert main(argv) == 2
-    assert "--infer-engine native" in capsys.readouterr().err and not out.exists()
+    assert "mpc.inference.engine = 'native'" in capsys.readouterr().err and not out.exists()
 
 
 def test_the_tables_bound_column_sums_each_reached_episodes_bound_at_the_tasks_tolerance():
@@ -351,27 +303,34 @@ def _parsed(*argv):
 
 def test_a_preset_sets_the_options_that_flags_and_set_control_override(tmp_path):
     """``--preset surrogate`` gives make control's setting; a flag given wins over it, and
-    ``--set control.KEY=VALUE`` over both; the scene's own --set keys pass through to the FEM plant.
-    Broken once with the preset applied after the flags: --episodes 3 came back as 10; and a flag was
-    taken as not given when it equalled its default (the bench test caught --mpc-standoff 0)."""
+    ``--set control.KEY=VALUE`` / ``--set mpc.KEY=VALUE`` over both; the scene's own --set keys pass
+    through to the FEM plant. Broken once with the preset applied after the flags: --episodes 3 came
+    back as 10; and a flag was taken as not given when it equalled its default."""
+    from deapull.control.mpc_policy import mpc_config
     args = _parsed("--preset", "surrogate", "--out", str(tmp_path), "--episodes", "3",
-                   "--set", "control.mpc_standoff=1.5", "--set", "control.mpc_no_reach_gate=false",
-                   "--set", "mesh.n_length=4")
+                   "--set", "mpc.standoff_stds=1.5", "--set", "mpc.reach_gate=true",
+                   "--set", "mpc.estimator.innovation_window=7", "--set", "mesh.n_length=4")
     assert args.policy == "mpc,sac,pd,heur" and args.plant == "surrogate:C1,surrogate:C2"
-    assert args.episodes == 3 and args.mpc_standoff == 1.5 and args.mpc_no_reach_gate is False
+    mpc = mpc_config(args.mpc_table)
+    assert args.episodes == 3 and mpc.standoff_stds == 1.5 and mpc.reach_gate is True
+    assert mpc.approach_m == 1e-4 and mpc.estimator.innovation_window == 7      # the preset's, and the --set's
     assert args.mpc_model == "out/models/fa_push" and args.overrides == ["mesh.n_length=4"]
-    # a flag given at its default value still wins over the preset (the stand-off back to 0)
-    assert _parsed("--preset", "surrogate", "--out", str(tmp_path), "--mpc-standoff", "0").mpc_standoff == 0.0
-    assert _parsed("--preset", "surrogate", "--out", str(tmp_path)).mpc_standoff == 2.0
+    # a flag given at its default value still wins over the preset
+    assert _parsed("--preset", "surrogate", "--out", str(tmp_path), "--episodes", "10", "--noise", "0").noise == "0"
+    assert mpc_config(_parsed("--preset", "surrogate", "--out", str(tmp_path)).mpc_table).standoff_stds == 2.0
     fem = _parsed("--preset", "fem", "--out", str(tmp_path))
-    assert fem.plant.count("fem:") == 8 and fem.mpc_max_rate == 0.4 and fem.unreachable == "report"
+    fem_mpc = mpc_config(fem.mpc_table)
+    assert fem.plant.count("fem:") == 8 and fem_mpc.rate_V == 0.4 and fem.unreachable == "report"
+    assert fem.mpc_phi == "prior" and fem_mpc.estimator.innovation_window == 25
 
 
 @pytest.mark.parametrize("argv, named", [
     (["--preset", "nope"], "--preset 'nope': unknown preset; shipped: fem, surrogate"),
-    (["--preset", "surrogate", "--set", "control.mpc_standof=2"], "--set control.mpc_standof: unknown key"),
+    (["--preset", "surrogate", "--set", "control.mpc_standoff=2"], "--set control.mpc_standoff: unknown key"),
     (["--preset", "surrogate", "--set", "control.episodes=two"], "control.episodes = 'two': expected int"),
-    (["--preset", "surrogate", "--set", "control.infer_loss='roll'"], "expected one of step, rollout"),
+    (["--preset", "surrogate", "--set", "mpc.standof_stds=2"], "mpc.standof_stds: unknown key; allowed: horizon"),
+    (["--preset", "surrogate", "--set", "mpc.inference.loss='roll'"], "choose one of step, rollout"),
+    (["--preset", "surrogate", "--set", "control.mpc_phi='guess'"], "expected one of infer, prior, oracle"),
     (["--episodes", "2"], "--policy: missing"),
 ])
 def test_a_bad_preset_or_key_exits_2_naming_it(tmp_path, capsys, argv, named):
@@ -386,4 +345,5 @@ def test_the_help_lists_at_most_15_options_and_options_lists_them_all(capsys):
     assert len(listed) <= 15, listed
     assert main(["control", "--options"]) == 0
     text = capsys.readouterr().out
-    assert "mpc_standoff (default 0.0)" in text and "infer_loss (default 'step')" in text
+    assert "mpc_phi (default 'infer')" in text and "mpc.standoff_stds (default 0.0)" in text
+    assert "mpc.inference.loss (default 'step')" in text and "mpc.estimator.innovation_window (default 0)" in text

@@ -141,15 +141,15 @@ def test_mpc_with_a_filter_holds_the_target_closer_under_noise(coulomb_and_plant
     σ = 0.1 mm, true φ, six seeds). Broken once: with the hold off (hold_band 0) the
     offset-free MPC settled no more often than the kf one."""
     from deapull.control.env import CoinPushEnv
+    from deapull.control.filters import EstimatorConfig
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.workflows.control import run_episode
 
     from .conftest import FIXTURE_TARGET_M
     model, plant = coulomb_and_plant
     rows = {}
-    for name, f, offset_free in (("raw", "none", False), ("kf", "kf", False), ("offset-free", "none", True)):
-        config = MPCConfig(horizon=10, iterations=4, infer=False, filter=f, offset_free=offset_free,
-                           hold_band=0.5 if offset_free else 0.0)
+    for name, kind in (("raw", "none"), ("kf", "kf"), ("offset-free", "bias")):
+        config = MPCConfig(horizon=10, iterations=4, inference=None, estimator=EstimatorConfig(kind=kind))
         for seed in range(6):
             env = CoinPushEnv(plant, target_m=FIXTURE_TARGET_M, terminate_on_success=False, max_steps=800,
                               noise_std_m=1e-4)
@@ -163,7 +163,7 @@ def test_mpc_with_a_filter_holds_the_target_closer_under_noise(coulomb_and_plant
     assert settled["offset-free"] > settled["kf"] >= settled["raw"]
 
 
-def test_mpc_recentres_a_coin_its_estimate_holds_short(fs1_model):
+def test_mpc_recentres_a_coin_its_estimate_holds_short(fs1_model, monkeypatch):
     """The hold starts on an estimate whose std is still ~5 µm at σ = 0.1 mm, and the
     hysteresis (4.5 stds) keeps it: on the ratchet plant (the FEM's quasi-static push, no
     coast) 3 of 12 seeds stand 13–17 µm short of the target, outside the window, for 2,800
@@ -171,6 +171,7 @@ def test_mpc_recentres_a_coin_its_estimate_holds_short(fs1_model):
     short). With the re-centring (a creep step toward the target while the averaged-down
     estimate is off it by more than 1.5 of its stds) every seed reaches and settles. Broken
     once: with the nudge's sign flipped (away from the target) the three stood short again."""
+    from deapull.control import mpc_policy
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.workflows.control import run_episode
@@ -178,8 +179,8 @@ def test_mpc_recentres_a_coin_its_estimate_holds_short(fs1_model):
     from .conftest import FIXTURE_TARGET_M, RatchetPlant
     settled = {}
     for recentre in (0.0, 1.5):
-        config = MPCConfig(horizon=10, iterations=4, infer=False, recentre_stds=recentre, max_rate_V=0.4,
-                           approach_m=1e-4, creep_V=0.1)
+        monkeypatch.setattr(mpc_policy, "RECENTRE_STDS", recentre)
+        config = MPCConfig(horizon=10, iterations=4, inference=None, rate_V=0.4, approach_m=1e-4, creep_V=0.1)
         rows = []
         for seed in range(12):
             plant = RatchetPlant()
@@ -192,9 +193,9 @@ def test_mpc_recentres_a_coin_its_estimate_holds_short(fs1_model):
     assert settled[1.5] == 12 > settled[0.0]
 
 
-def test_the_hold_of_a_coin_that_stands_inside_outlasts_the_estimate_s_noise(fs1_model):
+def test_the_hold_of_a_coin_that_stands_inside_outlasts_the_estimate_s_noise(fs1_model, monkeypatch):
     """A coin parked 3 µm inside the window (it never moves) observed at σ = 0.1 mm: once the
-    policy holds V, the default hysteresis (``hold_stds`` 4.5 of the estimate's own stds) keeps
+    policy holds V, the default hysteresis (``HOLD_STDS`` 4.5 of the estimate's own stds) keeps
     the hold for all 600 steps on 10 seeds. With 1 std the estimate's noise ends the hold on
     some seeds, and the re-plans move V (surrogate:C1 at 1e-4, episode 7, did the same: a
     coin 2.9 µm inside pulled out; docs/control.md). Re-centring is off, so only the
@@ -222,8 +223,12 @@ def test_the_hold_of_a_coin_that_stands_inside_outlasts_the_estimate_s_noise(fs1
             broken.append(ended)
         return broken
 
-    base = dict(horizon=10, iterations=4, infer=False, recentre_stds=0.0)
-    default, one_std = ended_holds(MPCConfig(**base)), ended_holds(MPCConfig(**base, hold_stds=1.0))
+    from deapull.control import mpc_policy
+    monkeypatch.setattr(mpc_policy, "RECENTRE_STDS", 0.0)
+    config = MPCConfig(horizon=10, iterations=4, inference=None)
+    default = ended_holds(config)
+    monkeypatch.setattr(mpc_policy, "HOLD_STDS", 1.0)
+    one_std = ended_holds(config)
     print(default, one_std)
     assert not any(default)
     assert sum(n > 0 for n in one_std) >= 2

@@ -228,7 +228,7 @@ def test_the_mpc_reports_each_fields_cramer_rao_bound_as_it_goes(coulomb, sweep)
     bounds = {}
     for sigma in (0.0, 1e-4):
         env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=400, noise_std_m=sigma)
-        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, crlb_every=50))
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=InferenceConfig(optimizer="lm", crlb_every=50)))
         ep = run_episode(env, policy, seed=0, step_limit=300, hold_steps=150)
         crlb = ep.inferred["crlb_mu_b"]
         assert math.isnan(crlb[0]) and np.isfinite(crlb[-1])
@@ -302,7 +302,7 @@ def test_an_f_memory_f_a_carries_the_tips_memory_and_recovers_the_known_phi(memo
 
 
 def test_the_rollout_loss_recovers_the_frictions_and_is_not_biased_by_noise(coulomb, observations):
-    """``--infer-loss rollout`` (:class:`RolloutInference`): (μ_b, μ_t) fitted to f_a's open-loop
+    """``mpc.inference.loss = "rollout"`` (:class:`RolloutInference`): (μ_b, μ_t) fitted to f_a's open-loop
     rollout of the whole record, m_c given. Noise-free it recovers them exactly. At 10 µm of
     noise it lands within 10 % (its Cramér–Rao bounds here: 7.5 % and 5.9 %), while the paper's
     one-step loss on the same record, whose inputs (the position and a velocity differenced
@@ -338,19 +338,20 @@ def test_the_rollout_loss_recovers_the_frictions_and_is_not_biased_by_noise(coul
 
 
 def test_the_cli_refuses_bad_inference_and_plant_coin_settings(sweep_dir, tmp_path, capsys):
-    """``--infer-loss``, ``--infer-every``, ``--infer-fields`` and ``--plant-phi`` are checked before
-    any model loads, naming the argument and what is allowed; nothing is written. Broken once
-    (the ``--plant-phi`` check removed): an unknown field reached the plant's φ and raised
-    ("TypeError: Phi.__init__() got an unexpected keyword argument 'mass_g'")."""
+    """``mpc.inference.loss``, ``.every``, ``.fields`` and ``--plant-phi`` are checked before any model
+    loads, naming the key and what is allowed; nothing is written. Broken once (the ``--plant-phi``
+    check removed): an unknown field reached the plant's φ and raised ("TypeError: Phi.__init__() got
+    an unexpected keyword argument 'mass_g'")."""
     from deapull.workflows.cli import main
     base = ["control", "--policy", "mpc", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--episodes", "1",
             "--out", str(tmp_path / "out"), "--no-progress"]
-    for extra, named in ((["--infer-loss", "rollout", "--infer-optimizer", "adam"], "--infer-optimizer lm"),
-                         (["--infer-every", "0"], "--infer-every 0"),
+    for extra, named in ((["--set", "mpc.inference.loss='rollout'", "--set", "mpc.inference.optimizer='adam'"],
+                          "mpc.inference.optimizer = 'lm'"),
+                         (["--set", "mpc.inference.every=0"], "mpc.inference.every = 0"),
                          (["--plant-phi", "mass_g=2"], "mass_g"),
                          (["--plant-phi", "mu_b=-0.2"], "mu_b=-0.2"),
                          (["--plant-phi", "mu_b=nan"], "mu_b=nan"),
-                         (["--infer-fields", "mass_g"], "--infer-fields 'mass_g'")):
+                         (["--set", "mpc.inference.fields=['mass_g']"], "mpc.inference.fields = ['mass_g']")):
         assert main(base + extra) == 2, extra
         assert named in capsys.readouterr().err, (extra, named)
         assert not (tmp_path / "out").exists()

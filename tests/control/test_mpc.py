@@ -303,7 +303,7 @@ def test_mpc_drives_a_surrogate_plant_to_the_target(coulomb, infer, engine):
     from deapull.surrogate.phi import Phi
     truth = Phi(*TRUTH_PHI)
     env = CoinPushEnv(SurrogatePlant(coulomb, truth), target_m=-2e-4, max_steps=120)
-    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=infer, engine=engine), phi=truth)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, engine=engine, **({} if infer else {"inference": None})), phi=truth)
     info, actions = episode(policy, env)
     assert info["success"], (info["error_m"], info["V_V"])
     # the approach is the ramp at the limit, then the MPC eases off
@@ -329,7 +329,7 @@ def test_the_offset_free_mpc_settles_at_every_setpoint_of_push_push_pull_back(co
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
     env = CoinPushEnv(plant, target_m=-0.2e-3, terminate_on_success=False, max_steps=3000)
-    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False), phi=plant.truth)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None), phi=plant.truth)
     ep = run_episode(env, policy, seed=0, step_limit=800, hold_steps=100, setpoints_m=(-0.2e-3, -0.4e-3, -0.3e-3))
     row = ep.row
     assert (row["setpoints_reached"], row["setpoints_settled"]) == (3, 3), row
@@ -350,8 +350,8 @@ def test_with_a_prior_the_plan_uses_only_what_the_data_identify(coulomb, sweep):
     from deapull.control.plants import SurrogatePlant
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
-    config = MPCConfig(horizon=10, iterations=4, crlb_every=25,
-                       inference=InferenceConfig(optimizer="lm", prior=COIN_PRIOR))
+    config = MPCConfig(horizon=10, iterations=4,
+                       inference=InferenceConfig(optimizer="lm", prior=COIN_PRIOR, crlb_every=25))
     planned = {}
     for sigma in (0.0, 1e-4):
         env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=300, noise_std_m=sigma)
@@ -368,9 +368,8 @@ def test_with_a_prior_the_plan_uses_only_what_the_data_identify(coulomb, sweep):
 
 
 @pytest.mark.parametrize("field, value", [("creep_V", -0.5), ("approach_m", float("nan")), ("standoff_stds", -1.0),
-                                          ("identified_crlb", 0.0), ("hold_band", 1.5), ("max_wait", -1),
-                                          ("max_rate_V", -0.4), ("recentre_stds", -1.5),
-                                          ("recentre_band", float("nan"))])
+                                          ("rate_V", -0.4), ("horizon", 0), ("iterations", 1.5), ("cost", "cheap"),
+                                          ("engine", "gpu")])
 def test_bad_mpc_settings_are_refused_naming_the_field(field, value):
     from deapull.control.mpc_policy import MPCConfig
     with pytest.raises(InputError, match=field.replace("_", "[ _]")):
@@ -388,7 +387,7 @@ def test_near_the_target_the_approach_limit_slows_the_push_and_small_steps_creep
     largest_near = {}
     for approach in (0.0, 0.2e-3):
         env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=400)
-        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False, approach_m=approach),
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None, approach_m=approach),
                            phi=plant.truth)
         obs, info = env.reset(seed=0)
         policy.reset(env.task_spec())
@@ -407,45 +406,58 @@ def test_near_the_target_the_approach_limit_slows_the_push_and_small_steps_creep
     assert largest_near[0.0] == pytest.approx(5.0) and largest_near[0.2e-3] < 5.0
 
 
-def test_under_noise_the_stand_off_holds_short_of_the_target_until_the_estimate_has_averaged(coulomb, sweep):
+def test_under_noise_the_stand_off_holds_short_of_the_target_until_the_estimate_has_averaged(coulomb, sweep, monkeypatch):
     """With ``standoff_stds`` at σ = 0.1 mm the MPC stops short on the side the coin comes from
     and holds V (the estimate's std falls as the observations average), then goes on: it
     waits, and the coin never passes the target's window on the way. Broken once: no stand-off
     (the policy never waited)."""
+    from deapull.control import mpc_policy
+    monkeypatch.setattr(mpc_policy, "MAX_WAIT", 1200)
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
     env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000, noise_std_m=1e-4)
-    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False, standoff_stds=2.0, max_wait=1200),
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None, standoff_stds=2.0),
                        phi=plant.truth)
     row = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50).row
     assert policy.waited > 50
     assert row["overshoot_m"] < 1e-5
 
 
-def test_the_rate_limit_caps_every_step_and_the_plan_still_reaches_and_holds(coulomb, sweep):
-    """``max_rate_V`` (ramp-rate-aware planning, ``--mpc-max-rate``): the MPC plans with that
-    ΔV_max and applies no step larger, creep included; it still reaches the target and holds
-    it. Without it the MPC pushes at the plant's 5 V per step. Broken once: the rate left out
-    of the plan's ΔV_max (the cap check failed: 5 V steps)."""
+def test_the_rate_schedule_is_fast_below_the_onset_and_the_cruise_rate_once_the_coin_moves(coulomb, sweep,
+                                                                                            monkeypatch):
+    """``rate_V`` (the rate schedule): the MPC plans with that ΔV_max and, once the coin moves,
+    applies no step larger; below the onset, where f_a pushed at the plant's full rate leaves the coin
+    standing for ``MARGIN_V`` more, it steps at the full 5 V, so it reaches sooner than at 0.4 V all
+    the way and still holds. Without ``rate_V`` the MPC pushes at 5 V per step throughout. Broken
+    once: the fast start left out (every step at 0.4 V, no faster reach: the last checks failed)."""
+    from deapull.control import mpc_policy
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
-    largest = {}
-    for rate in (0.0, 0.4):
+    largest, fast, reached = {}, {}, {}
+    for label, rate, start in (("plant", 0.0, True), ("schedule", 0.4, True), ("capped", 0.4, False)):
+        if not start:
+            monkeypatch.setattr(mpc_policy.MPCPolicy, "_below_onset", lambda self, *a: False)
         env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000)
-        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=rate),
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None, rate_V=rate),
                            phi=plant.truth)
         episode = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50)
-        V = np.asarray(episode.V_V)
-        largest[rate] = float(np.abs(np.diff(V)).max())
-        assert episode.row["reached"] and episode.row["settled"], (rate, episode.row)
-    assert largest[0.0] == pytest.approx(5.0)
-    assert largest[0.4] <= 0.4 + 1e-9
+        V, x = np.asarray(episode.V_V), np.asarray(episode.x_m)
+        steps = np.abs(np.diff(V))
+        moving = np.abs(x[:-1]) > 0                       # the coin has left its start before the step
+        largest[label] = float(steps[moving].max())
+        fast[label] = int((steps > 0.4 + 1e-9).sum())
+        reached[label] = episode.row["iterations_to_target"]
+        assert episode.row["reached"] and episode.row["settled"], (label, episode.row)
+    assert largest["plant"] == pytest.approx(5.0)
+    assert largest["schedule"] <= 0.4 + 1e-9 and largest["capped"] <= 0.4 + 1e-9
+    assert fast["schedule"] > 10 and fast["capped"] == 0
+    assert reached["schedule"] < 0.8 * reached["capped"], reached
 
 
 def test_the_approach_taper_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
@@ -462,7 +474,7 @@ def test_the_approach_taper_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     from deapull.control.plants import SurrogatePlant
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
-    config = MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=0.4, approach_m=1e-4, creep_V=0.1)
+    config = MPCConfig(horizon=10, iterations=4, inference=None, rate_V=0.4, approach_m=1e-4, creep_V=0.1)
     rows = {}
     for target in (-0.645e-3, -0.5e-3):
         env = CoinPushEnv(plant, target_m=target, terminate_on_success=False, max_steps=3000)
@@ -472,7 +484,7 @@ def test_the_approach_taper_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     assert rows[-0.5e-3]["settled"] and rows[-0.5e-3]["final_V_V"] < 350, rows[-0.5e-3]
 
 
-def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
+def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep, monkeypatch):
     """The stand-off parks the coin short of the target while the estimate averages down; at the
     edge of the reach (−0.645 mm, 3 µm inside the fixture surrogate's 0.4 V-per-step travel) the
     parked coin never gets there (it stood short for the rest of the episode), as fem:C7 at
@@ -482,6 +494,8 @@ def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     −0.645 mm episode waited 800 steps (max_wait then) and was never reached (the first check failed). The reach
     is rolled out once per step, though the stand-off and the taper both ask (broken once: without
     the step's memo, steps of the −0.645 mm episode rolled it out twice)."""
+    from deapull.control import mpc_policy
+    monkeypatch.setattr(mpc_policy, "MAX_WAIT", 1200)
     import collections
 
     from deapull.control.env import CoinPushEnv
@@ -489,8 +503,8 @@ def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     from deapull.control.plants import SurrogatePlant
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
-    config = MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=0.4, approach_m=1e-4, creep_V=0.1,
-                       standoff_stds=2.0, max_wait=1200)
+    config = MPCConfig(horizon=10, iterations=4, inference=None, rate_V=0.4, approach_m=1e-4, creep_V=0.1,
+                       standoff_stds=2.0)
     rows, waited = {}, {}
     for target in (-0.645e-3, -0.5e-3):
         env = CoinPushEnv(plant, target_m=target, terminate_on_success=False, max_steps=3000, noise_std_m=1e-4)
@@ -526,7 +540,7 @@ def test_the_reach_gate_can_be_switched_off(coulomb, sweep):
     target, V = -0.645e-3, 399.6
     judged = {}
     for gate in (True, False):
-        config = MPCConfig(horizon=10, iterations=4, infer=False, max_rate_V=0.4, approach_m=1e-4, creep_V=0.1,
+        config = MPCConfig(horizon=10, iterations=4, inference=None, rate_V=0.4, approach_m=1e-4, creep_V=0.1,
                            standoff_stds=2.0, reach_gate=gate)
         env = CoinPushEnv(plant, target_m=target, terminate_on_success=False, max_steps=3000, noise_std_m=1e-4)
         env.reset(seed=0)
@@ -560,7 +574,7 @@ def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(
     monkeypatch.setattr(mpc, "solve", standing_plan)
     target = -0.4e-3
     env = CoinPushEnv(ParkedPlant(target + off_um * 1e-6), target_m=target, terminate_on_success=False)
-    config = MPCConfig(infer=False, engine="torch")
+    config = MPCConfig(inference=None, engine="torch")
     policy = MPCPolicy(fs1_model, config, phi=Phi(1.36e-3, 0.2, 0.5))
     obs, info = env.reset(seed=0)
     policy.reset(env.task_spec())
@@ -569,19 +583,21 @@ def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(
     assert dV == (0.0 if expected == "hold" else pytest.approx(config.creep_V))
 
 
-def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_next_episode_is_faster(coulomb, sweep):
+def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_next_episode_is_faster(coulomb, sweep, monkeypatch):
     """``learn`` (iterative learning control): episode 1 at σ = 0.1 mm with the stand-off waits for its
     estimate to average down; it ends settled and leaves its final voltage and g; episode 2 plays the
     rate schedule to that voltage (no plan, no stand-off) and holds: it reaches in fewer iterations
     than episode 1, stays inside, and starts its filter from g. Another noise is another task. Broken
     once: the schedule left out (episode 2 took as long as episode 1)."""
+    from deapull.control import mpc_policy
+    monkeypatch.setattr(mpc_policy, "MAX_WAIT", 1200)
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
     env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000, noise_std_m=1e-4)
-    config = MPCConfig(horizon=10, iterations=4, infer=False, standoff_stds=2.0, max_wait=1200, approach_m=1e-4)
+    config = MPCConfig(horizon=10, iterations=4, inference=None, standoff_stds=2.0, approach_m=1e-4)
     policy = MPCPolicy(coulomb, config, phi=plant.truth)
     first = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50).row
     gain, V_end = policy.bias.gain, policy.previous[2]
@@ -608,7 +624,7 @@ def test_the_stand_off_does_not_wait_where_the_noise_cannot_be_averaged_down_in_
     from deapull.workflows.control import run_episode
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
     env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000, noise_std_m=1e-3)
-    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, infer=False, standoff_stds=2.0, max_wait=1500),
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None, standoff_stds=2.0),
                        phi=plant.truth)
     run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50)
     assert policy._unresolvable() and policy.waited == 0

@@ -131,7 +131,7 @@ def _memory_episode(model, engine: str, steps: int = 150):
     truth = Phi(*TRUTH_PHI)
     plant = SurrogatePlant(model, truth)
     env = CoinPushEnv(plant, target_m=-0.2e-3, max_steps=steps, terminate_on_success=False)
-    policy = MPCPolicy(model, MPCConfig(horizon=8, iterations=3, infer=False, engine=engine), phi=truth)
+    policy = MPCPolicy(model, MPCConfig(horizon=8, iterations=3, inference=None, engine=engine), phi=truth)
     obs, info = env.reset(seed=0)
     zero = torch.zeros(1, dtype=F64)
     with torch.no_grad():                    # the DEA at rest at 0 V, as the policy starts it
@@ -164,8 +164,8 @@ def test_the_policy_tracks_the_tips_memory_and_reaches_the_target(trained, engin
     assert actions[0] == pytest.approx(DV_MAX) and min(actions[-10:]) < DV_MAX          # ramp, then the MPC
 
 
-def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained):
-    """``unstall``: after a pull-back (push to −0.30 mm, back to −0.25 mm, on to −0.30 mm) on a
+def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained, monkeypatch):
+    """``UNSTALL``: after a pull-back (push to −0.30 mm, back to −0.25 mm, on to −0.30 mm) on a
     memoryless plant, the f-memory MPC's solved plans hold V with the coin standing (its
     model's tip must reload its friction first, late in the horizon); the policy creeps
     instead and the coin is back on each target within a few steps. Without the rule it
@@ -175,6 +175,7 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     7], True: [59, 64, 7]}, assert 64 < 20" and with "{False: [62, 6, None], True: [62, 6,
     None]}". Re-centring is off here: it moves the coin during the first hold, and from
     there both reach the second target in 7 steps (measured), so it would hide the rule."""
+    from deapull.control import mpc_policy
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
@@ -186,7 +187,9 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     steps, rows = {}, {}
     for unstall in (False, True):
         env = CoinPushEnv(plant, target_m=setpoints[0], terminate_on_success=False, max_steps=4000)
-        policy = MPCPolicy(trained("f-memory").model, MPCConfig(infer=False, unstall=unstall, recentre_stds=0.0), phi=phi)
+        monkeypatch.setattr(mpc_policy, "UNSTALL", unstall)
+        monkeypatch.setattr(mpc_policy, "RECENTRE_STDS", 0.0)
+        policy = MPCPolicy(trained("f-memory").model, MPCConfig(inference=None), phi=phi)
         rows[unstall] = run_episode(env, policy, seed=0, step_limit=1200, hold_steps=50, setpoints_m=setpoints).row
         steps[unstall] = [None if s == "None" else int(s) for s in rows[unstall]["iterations_per_setpoint"].split(";")]
     # reached, not settled: the hold at the pull-back's −0.25 mm is the f-memory model's release
@@ -201,7 +204,7 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
 def test_the_cli_plans_and_infers_with_an_f_memory_model(trained, sweep_dir, fs1_dir, tmp_path):
     """``deapull control --mpc-model <f-memory>``: by default the MPC infers φ online with the
     f-memory f_a (its buffer carries the tip's memory) and the CSV records the estimate, inside
-    the physical box; with ``--mpc-no-infer --phi-prior coins`` the compiled f-memory MPC plans
+    the physical box; with ``mpc_phi = "prior"`` and ``--phi-prior coins`` the compiled f-memory MPC plans
     at the prior's median and records none. Broken once (the ``infer`` capability taken off
     f-memory): the default run exited 2 ("assert 2 == 0")."""
     import csv
@@ -214,7 +217,7 @@ def test_the_cli_plans_and_infers_with_an_f_memory_model(trained, sweep_dir, fs1
     argv = ["control", "--policy", "mpc", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--plant-model",
             str(fs1_dir), "--mpc-model", str(folder), "--no-progress",
             "--episodes", "1", "--noise", "0", "--target-mm", "-0.2", "--max-steps", "300", "--hold", "20"]
-    for name, extra in (("infer", []), ("fixed", ["--mpc-no-infer", "--phi-prior", "coins"])):
+    for name, extra in (("infer", []), ("fixed", ["--set", "control.mpc_phi='prior'", "--phi-prior", "coins"])):
         assert main(argv + ["--out", str(tmp_path / name), *extra]) == 0
         with open(tmp_path / name / "control.csv", newline="") as f:
             (row,) = list(csv.DictReader(f))

@@ -19,10 +19,11 @@ def test_aggregation_adds_the_closed_loop_runs_and_lowers_the_model_error_on_a_n
     from deapull.surrogate import store
     from deapull.surrogate.data import load_setup
     from deapull.surrogate.evaluate import evaluate
+    from deapull.control.mpc_policy import MPCConfig
     from deapull.workflows import control, dagger
     settings = control.ControlConfig(policies=["mpc"], plants=control.parse_plants("fem:C1"), noises=[1e-5],
                                      out=tmp_path, episodes=1, max_steps=200, hold_steps=20, target_m=-0.4e-3,
-                                     data=Path(sweep_dir), phi_prior="coins", mpc_approach_m=0.2e-3,
+                                     data=Path(sweep_dir), phi_prior="coins", mpc=MPCConfig(approach_m=0.2e-3),
                                      overrides=list(OVERRIDES), progress=False)
     config = dagger.DaggerConfig(control=settings, data=Path(sweep_dir), train=["C3", "C4"], val="C5",
                                  out=tmp_path / "dagger", rounds=2, epochs=80)
@@ -45,9 +46,10 @@ def test_aggregation_adds_the_closed_loop_runs_and_lowers_the_model_error_on_a_n
     (["--rounds", "0"], "--rounds 0"),
     (["--train", "C3,C9"], "C9.nc not found"),
     (["--mpc-model", "{tmp}/nowhere"], "--mpc-model"),
-    (["--mpc-standoff", "-1"], "--mpc-standoff"),
+    (["--set", "mpc.standoff_stds=-1"], "mpc.standoff_stds = -1"),
     (["--model-kind", "nn"], "cannot plan"),
-    (["--mpc-innovation-window", "-1"], "--mpc-innovation-window"),
+    (["--set", "mpc.estimator.innovation_window=-1"], "mpc.estimator.innovation_window = -1"),
+    (["--preset", "nope"], "--preset 'nope'"),
 ])
 def test_bad_dagger_arguments_exit_2_naming_them_before_any_work(tmp_path, sweep_dir, capsys, change, named):
     from deapull.workflows.cli import main
@@ -60,19 +62,21 @@ def test_bad_dagger_arguments_exit_2_naming_them_before_any_work(tmp_path, sweep
     assert not out.exists()
 
 
-def test_dagger_takes_make_control_fems_innovation_check_and_the_reach_gate():
-    """``deapull dagger`` can run ``make control-fem``'s MPC: ``--mpc-innovation-window`` and
-    ``--mpc-no-reach-gate`` reach the closed loop's settings; left out, the window is off and the
-    gate on, as in ``deapull control``. Broken once (the window not passed on): it stayed 0."""
+def test_dagger_takes_the_fem_presets_mpc_and_set_mpc_changes_it():
+    """``deapull dagger`` runs ``make control PRESET=fem``'s MPC by default (its [mpc] table, its
+    fixed prior), another preset's with ``--preset``, and ``--set mpc.KEY=VALUE`` changes one setting;
+    the scene's own --set keys pass through to the FEM plant. Broken once (the preset's [mpc] table
+    not read): the window stayed 0 and the rate 0."""
     from deapull.workflows.cli import build_parser
     from deapull.workflows.cli_control import dagger_config
     parser = build_parser()
-    base = ["dagger", "--out", "unused", "--mpc-no-infer", "--mpc-standoff", "2"]
-    plain = dagger_config(parser.parse_args(base)).control
-    assert plain.mpc_innovation_window == 0 and plain.mpc_reach_gate is True
-    fem = dagger_config(parser.parse_args(base + ["--mpc-innovation-window", "25", "--mpc-no-reach-gate"])).control
-    assert fem.mpc_innovation_window == 25 and fem.mpc_reach_gate is False
-    assert fem.mpc_standoff == 2.0 and fem.mpc_no_infer
+    fem = dagger_config(parser.parse_args(["dagger", "--out", "unused"])).control
+    assert fem.mpc.estimator.innovation_window == 25 and fem.mpc.rate_V == 0.4 and fem.mpc.reach_gate is True
+    assert fem.mpc_phi == "prior" and fem.phi_prior == "coins" and fem.mpc.standoff_stds == 2.0
+    other = dagger_config(parser.parse_args(["dagger", "--out", "unused", "--preset", "surrogate", "--set",
+                                             "mpc.estimator.innovation_window=5", "--set", "mesh.n_length=4"])).control
+    assert other.mpc.estimator.innovation_window == 5 and other.mpc.reach_gate is False and other.mpc.rate_V == 0.0
+    assert other.mpc_phi == "infer" and other.overrides == ["mesh.n_length=4"]
 
 
 def test_aggregation_retrains_a_memory_f_a_as_a_memory_model(tmp_path, sweep_dir):
@@ -91,7 +95,7 @@ def test_aggregation_retrains_a_memory_f_a_as_a_memory_model(tmp_path, sweep_dir
     store.save(first.model, tmp_path / "fa_mem", first.summary(), first.history)
     settings = control.ControlConfig(policies=["mpc"], plants=control.parse_plants("fem:C1"), noises=[1e-5],
                                      out=tmp_path, episodes=1, max_steps=120, hold_steps=20, target_m=-0.4e-3,
-                                     data=Path(sweep_dir), phi_prior="coins", mpc_no_infer=True,
+                                     data=Path(sweep_dir), phi_prior="coins", mpc_phi="prior",
                                      overrides=list(OVERRIDES), progress=False)
     config = dagger.DaggerConfig(control=settings, data=Path(sweep_dir), train=["C3", "C4"], val="C5",
                                  out=tmp_path / "dagger", rounds=2, epochs=40, model=tmp_path / "fa_mem")

@@ -163,25 +163,26 @@ def test_the_fem_control_text_says_how_each_run_moved_v_from_its_own_run_json():
     """The FEM closed-loop section describes each run's MPC settings from its ``run.json``, not
     from typed text: the rate limit, the approach, the stand-off, the innovation check, the
     fixed φ and f_a's folder appear only when that run used them. Broken once: the rate read
-    from the wrong key (the first check failed); and the window read from ``mpc_recentre``
+    from the wrong key (the first check failed); and the window read from the wrong key
     (the last check failed); and the reach gate's sentence written whatever the flag (the
     gate-on checks failed)."""
-    rate = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_approach_m": 0.0, "mpc_standoff": 0.0})
+    def text(mpc=None, **control):
+        return sections_control.mpc_settings_text({**control, "mpc": mpc or {}})
+
+    rate = text({"rate_V": 0.4, "approach_m": 0.0, "standoff_stds": 0.0})
     assert "0.4 V per step" in rate and "mm of the target" not in rate and "stds" not in rate
-    slow = sections_control.mpc_settings_text({"dv_max_V": 5.0, "mpc_max_rate_V": 0.0, "mpc_approach_m": 1e-3,
-                                                "mpc_standoff": 2.0})
+    slow = text({"rate_V": 0.0, "approach_m": 1e-3, "standoff_stds": 2.0}, dv_max_V=5.0)
     assert "5 V per step" in slow and "within 1 mm" in slow and "2 stds" in slow and "0.5 V per step" in slow
-    taper = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_approach_m": 1e-4, "mpc_creep_V": 0.1})
+    taper = text({"rate_V": 0.4, "approach_m": 1e-4, "creep_V": 0.1})
     assert "within 0.1 mm" in taper and "down to 0.1 V per step" in taper
     assert "innovations" not in taper and "no online inference" not in taper and "f_a from" not in taper
-    memory = sections_control.mpc_settings_text({"mpc_max_rate_V": 0.4, "mpc_innovation_window": 25,
-                                                  "mpc_no_infer": True, "mpc_model": "out/models/fa_mem"})
+    memory = text({"rate_V": 0.4, "estimator": {"innovation_window": 25}}, mpc_phi="prior",
+                  mpc_model="out/models/fa_mem")
     assert "last 25 innovations" in memory and "no online inference" in memory and "`out/models/fa_mem`" in memory
     assert "reach" not in slow and "reach" not in memory      # the gate on (the default) or nothing it gates
-    gate_off = sections_control.mpc_settings_text({"mpc_max_rate_V": 5.0, "mpc_approach_m": 2e-4, "mpc_standoff": 2.0,
-                                                    "mpc_reach_gate": False})
-    assert "`--mpc-no-reach-gate`" in gate_off
-    assert "reach" not in sections_control.mpc_settings_text({"mpc_max_rate_V": 5.0, "mpc_reach_gate": False})
+    gate_off = text({"rate_V": 5.0, "approach_m": 2e-4, "standoff_stds": 2.0, "reach_gate": False})
+    assert "`mpc.reach_gate = false`" in gate_off
+    assert "reach" not in text({"rate_V": 5.0, "reach_gate": False})
 
 
 def test_the_model_section_describes_the_scene_at_the_datasets_fidelity(tmp_path):

@@ -105,13 +105,9 @@ STEPS = (
     Step("experiments-protocols", "deapull experiments-protocols --data {data} --excitation {excitation} "
          "--out {protocols} --ramp-results {experiments}", "the surrogates on held-out protocols and coins",
          "protocols"),
-    Step("control", "deapull control --policy mpc,sac,pd,heur --plant surrogate:C1,surrogate:C2 --episodes 10 "
-         "--noise 0,1e-5,1e-4,1e-3 --mpc-approach-mm 0.1 --mpc-no-reach-gate --out {control}",
+    Step("control", "deapull control --preset surrogate --out {control}",
          "the closed-loop episodes (Fig. 6)", "control"),
-    Step("control-fem", "deapull control --policy mpc --plant fem:C1,...,fem:C8 --episodes 1 "
-         "--noise 1e-4 --phi-prior coins --mpc-model out/models/fa_mem --mpc-no-infer --mpc-standoff 2 "
-         "--mpc-innovation-window 25 --mpc-max-rate 0.4 --max-steps 4000 --unreachable report --out "
-         "{control_fem}", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)",
+    Step("control-fem", "deapull control --preset fem --out {control_fem}", "the MPC on the FEM plant of every setup (and the multi-setpoint task on fem:C3)",
          "control_fem", "control PRESET=fem"),
     Step("bench-control", "python bench/bench_control.py --out {bench_control}", "the MPC step beside mpc.pytorch",
          "bench_control", "bench BENCH=control"),

@@ -176,27 +176,30 @@ def section_control_fem(rep: Report) -> Section:
 
 
 def mpc_settings_text(config: dict) -> str:
-    """How a run's MPC moved V, from its ``run.json`` config (the options of ``deapull control``)."""
+    """How a run's MPC moved V, from its ``run.json`` config (``control`` with its ``mpc`` table)."""
+    mpc = config.get("mpc") or {}
+    estimator = mpc.get("estimator") or {}
     parts = []
-    rate = config.get("mpc_max_rate_V") or 0.0
-    parts.append(f"at most {rate:g} V per step (`--mpc-max-rate`)" if rate > 0 else
-                 f"up to the plant's {config.get('dv_max_V', 5.0):g} V per step")
-    if (config.get("mpc_approach_m") or 0.0) > 0:
-        creep = config.get("mpc_creep_V") or 0.5
-        parts.append(f"slowing within {1e3 * config['mpc_approach_m']:g} mm of the target (`--mpc-approach-mm`) "
-                     f"down to {creep:g} V per step (`--mpc-creep`)")
-    if (config.get("mpc_standoff") or 0.0) > 0:
-        parts.append(f"stopping {config['mpc_standoff']:g} stds of its estimate short while that is uncertain "
-                     "(`--mpc-standoff`)")
-    if (config.get("mpc_innovation_window") or 0) > 0:
-        parts.append(f"its bias filter checking the mean of its last {config['mpc_innovation_window']:d} "
-                     "innovations (`--mpc-innovation-window`)")
-    if config.get("mpc_reach_gate") is False and ((config.get("mpc_standoff") or 0.0) > 0
-                                                  or (config.get("mpc_approach_m") or 0.0) > 0):
+    rate = mpc.get("rate_V") or 0.0
+    plant = config.get("dv_max_V", 5.0)
+    parts.append(f"{plant:g} V per step while f_a says the coin stands, then {rate:g} V per step "
+                 f"(`mpc.rate_V`)" if rate > 0 else f"up to the plant's {plant:g} V per step")
+    if (mpc.get("approach_m") or 0.0) > 0:
+        creep = mpc.get("creep_V") or 0.5
+        parts.append(f"slowing within {1e3 * mpc['approach_m']:g} mm of the target (`mpc.approach_m`) "
+                     f"down to {creep:g} V per step (`mpc.creep_V`)")
+    if (mpc.get("standoff_stds") or 0.0) > 0:
+        parts.append(f"stopping {mpc['standoff_stds']:g} stds of its estimate short while that is uncertain "
+                     "(`mpc.standoff_stds`)")
+    if (estimator.get("innovation_window") or 0) > 0:
+        parts.append(f"its bias filter checking the mean of its last {estimator['innovation_window']:d} "
+                     "innovations (`mpc.estimator.innovation_window`)")
+    if mpc.get("reach_gate") is False and ((mpc.get("standoff_stds") or 0.0) > 0
+                                          or (mpc.get("approach_m") or 0.0) > 0):
         parts.append("keeping the stand-off and the slow approach also where f_a puts the target at the edge of "
-                     "the coin's reach (`--mpc-no-reach-gate`)")
-    if config.get("mpc_no_infer"):
-        parts.append("planning at the coin prior's median φ, no online inference (`--mpc-no-infer`)")
+                     "the coin's reach (`mpc.reach_gate = false`)")
+    if config.get("mpc_phi") == "prior":
+        parts.append("planning at the coin prior's median φ, no online inference (`mpc_phi = \"prior\"`)")
     if config.get("mpc_model"):
         parts.append(f"f_a from `{config['mpc_model']}`")
     return "; ".join(parts)
