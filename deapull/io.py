@@ -77,7 +77,7 @@ def write_json(path: str | os.PathLike, obj, indent: int = 1) -> Path:
     return write_text(path, json.dumps(obj, indent=indent, default=_json_default) + "\n")
 
 
-def cell(value, spec: str = ".3g") -> str:
+def cell(value, spec: str = ".3g", escape: bool = True) -> str:
     """A table cell: numbers formatted, NaN and None as '–', booleans as yes/no.
 
     ``spec = "s"``: a time in seconds, one decimal from 1 s on, two significant digits
@@ -91,14 +91,28 @@ def cell(value, spec: str = ".3g") -> str:
         if spec == "s":
             spec = ".1f" if abs(value) >= 1 else ".2g"
         return format(value, spec)
-    return str(value).replace("|", "\\|")
+    return str(value).replace("|", "\\|") if escape else str(value)
+
+
+def table_record(rows: Iterable[dict], columns: Sequence[tuple[str, str, str]]) -> dict:
+    """A table as data, ``{"headers": [...], "rows": [[cell, ...], ...]}`` with the cells formatted
+    (:func:`cell`); ``columns`` are (header, key, format spec) triples. What a stage writes into its
+    results JSON for the report and the docs to show as it is."""
+    return {"headers": [h for h, _, _ in columns],
+            "rows": [[cell(row.get(k), spec, escape=False) for _, k, spec in columns] for row in rows]}
 
 
 def markdown_table(rows: Iterable[dict], columns: Sequence[tuple[str, str, str]]) -> str:
     """A Markdown table; ``columns`` are (header, key, format spec) triples (see :func:`cell`)."""
-    lines = ["| " + " | ".join(h for h, _, _ in columns) + " |", "|" + "---|" * len(columns)]
-    for row in rows:
-        lines.append("| " + " | ".join(cell(row.get(k), spec) for _, k, spec in columns) + " |")
+    return markdown_of(table_record(rows, columns))
+
+
+def markdown_of(table: dict) -> str:
+    """A :func:`table_record` as a Markdown table."""
+    def esc(text: str) -> str:
+        return str(text).replace("|", "\\|")
+    lines = ["| " + " | ".join(esc(h) for h in table["headers"]) + " |", "|" + "---|" * len(table["headers"])]
+    lines += ["| " + " | ".join(esc(c) for c in row) + " |" for row in table["rows"]]
     return "\n".join(lines)
 
 

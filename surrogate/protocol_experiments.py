@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from deapull.errors import InputError
-from deapull.io import markdown_table, write_csv, write_json, write_text
+from deapull.io import markdown_of, markdown_table, table_record, write_csv, write_json, write_text
 from deapull.surrogate import store
 from deapull.surrogate.data import DatasetError, SetupData, load_setup
 from deapull.surrogate.evaluate import evaluate
@@ -214,7 +214,8 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, excitation
     write_text(out / "protocols.md", text + "\n")
     write_csv(out / "protocols.csv", rows, CSV_COLUMNS)
     write_json(out / "protocols.json", {"rows": [{k: r.get(k) for k in CSV_COLUMNS} for r in rows],
-                                        "summary": summary, "design": design.__dict__, "kinds": list(kinds),
+                                        "summary": summary, "tables": tables(summary, rows, kinds),
+                                        "design": design.__dict__, "kinds": list(kinds),
                                         "data": str(data_dir), "excitation": str(excitation_dir),
                                         "config": {k: v for k, v in vars(base).items() if k != "kind"}}, indent=2)
     plot(rows, kinds, design, out / "protocols.png")
@@ -278,10 +279,11 @@ def format_text(summary: list[dict], kinds) -> str:
     return table + "\n" + counts + "\n" + "\n".join(verdicts(summary, kinds))
 
 
-def format_markdown(summary: list[dict], rows: list[dict], kinds, design: Design) -> str:
+def tables(summary: list[dict], rows: list[dict], kinds) -> list[dict]:
+    """The summary by protocol and the per-run table as data (:func:`deapull.io.table_record`)."""
     cols = [c for c in COLUMNS if any(r.get(f"{c}_n") for r in summary)]
-    table = markdown_table([{"label": r["label"], **{c: _mean_max(r, c) for c in cols}} for r in summary],
-                           [("model", "label", "s")] + [(c, c, "s") for c in cols])
+    table = table_record([{"label": r["label"], **{c: _mean_max(r, c) for c in cols}} for r in summary],
+                         [("model", "label", "s")] + [(c, c, "s") for c in cols])
     runs = sorted({(r["run"], r["coin"], r["protocol"], r["role"]) for r in rows},
                   key=lambda k: (list(COLUMNS).index(next(c for c, ps in COLUMNS.items() if k[2] in ps)), k[0]))
     by = {(r["model"], r["run"]): r for r in rows}
@@ -292,8 +294,13 @@ def format_markdown(summary: list[dict], rows: list[dict], kinds, design: Design
             r = by[(k, name)]
             rec[k] = "div." if r["diverged"] else f"{r['x_error_pct_travel']:.2f}"
         per_run.append(rec)
-    per_table = markdown_table(per_run, [("run", "run", "s"), ("held out", "role", "s"), ("travel mm", "travel", ".3f")]
-                               + [(KINDS[k].label, k, "s") for k in kinds])
+    per_table = table_record(per_run, [("run", "run", "s"), ("held out", "role", "s"), ("travel mm", "travel", ".3f")]
+                             + [(KINDS[k].label, k, "s") for k in kinds])
+    return [table, per_table]
+
+
+def format_markdown(summary: list[dict], rows: list[dict], kinds, design: Design) -> str:
+    table, per_table = (markdown_of(t) for t in tables(summary, rows, kinds))
     return (f"# Held-out protocols and coins\n\nTrained on coins {', '.join(design.train_coins)} with protocols "
             f"{', '.join(design.train_protocols)}; early-stopped on {', '.join(design.val_coins)}; test coins "
             f"{', '.join(design.test_coins)}; held-out protocols {', '.join(design.test_protocols)}.\n\n"

@@ -477,8 +477,9 @@ def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list
     columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred", "crlb") for f in PHI_FIELDS]
     write_csv(out / "control.csv", rows, columns)
     write_text(out / "table.md", summary_table(rows, task.tolerance_m) + "\n")
-    write_json(out / "summary.json", {"tolerance_m": task.tolerance_m, "target_m": task.target_m,
-                                      "groups": control_outputs.summary_counts(rows)}, indent=2)
+    write_json(out / "summary.json", {"schema": 2, "tolerance_m": task.tolerance_m, "target_m": task.target_m,
+                                      "groups": control_outputs.summary_counts(rows),
+                                      "table": control_outputs.summary_record(rows, task.tolerance_m)}, indent=2)
     traces = {}
     for k, e in enumerate(episodes):
         key = f"{e.row['policy']}|{e.row['plant']}|{e.row['noise_std_m']:g}|{e.row['episode']}"

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from deapull.control.filters import settle_bound
-from deapull.io import atomic_write, markdown_table
+from deapull.io import atomic_write, markdown_of, table_record
 from deapull.paper import CONTROL
 
 
@@ -150,14 +150,25 @@ def summary_counts(rows: list[dict]) -> list[dict]:
     return out
 
 
+#: the control table's columns (header, key of :func:`summary_rows`, format)
+TABLE_COLUMNS = (
+    ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
+    ("setpoints (mm)", "task", "s"), ("reached", "reached", "s"), ("settled", "settled", "s"),
+    ("iterations to target, median [25–75 %]", "its", "s"),
+    ("episode 1", "first", "s"), ("episodes 2–N settled, median iterations", "later", "s"),
+    ("information bound: settled at most in those iterations", "bound", "s"),
+    ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("largest overshoot (mm)", "overshoot_mm", ".3g"),
+    ("ms / iteration", "ms", ".3g"), ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
+    ("paper: ms / iteration", "paper_ms", "g"))
+
+
+def summary_record(rows: list[dict], tolerance_m: float) -> dict:
+    """The table of :func:`summary_rows` as data (:func:`deapull.io.table_record`), for summary.json."""
+    return table_record(summary_rows(rows, tolerance_m), TABLE_COLUMNS)
+
+
 def summary_table(rows: list[dict], tolerance_m: float) -> str:
     """Markdown: per policy, plant and noise, beside the paper's iterations and time."""
-    return markdown_table(summary_rows(rows, tolerance_m), [
-        ("policy", "policy", "s"), ("plant", "plant", "s"), ("noise std (m)", "noise", "g"),
-        ("setpoints (mm)", "task", "s"), ("reached", "reached", "s"), ("settled", "settled", "s"),
-        ("iterations to target, median [25–75 %]", "its", "s"),
-        ("episode 1", "first", "s"), ("episodes 2–N settled, median iterations", "later", "s"),
-        ("information bound: settled at most in those iterations", "bound", "s"),
-        ("final abs(x − x^T) median (mm)", "error_mm", ".3g"), ("largest overshoot (mm)", "overshoot_mm", ".3g"), ("ms / iteration", "ms", ".3g"),
-        ("training env steps", "training", "d"), ("paper: iterations", "paper_its", "s"),
-        ("paper: ms / iteration", "paper_ms", "g")])
+    return markdown_of(summary_record(rows, tolerance_m))
+
+

@@ -31,7 +31,7 @@ import numpy as np
 
 from deapull import dataset, provenance, scene as scenes
 from deapull.errors import InputError
-from deapull.io import atomic_write, cell as fmt, markdown_table, write_csv, write_text
+from deapull.io import atomic_write, cell as fmt, markdown_table, write_csv, write_json, write_text
 from deapull.workflows.runner import Case, run_cases
 
 log = logging.getLogger(__name__)
@@ -359,13 +359,19 @@ def ranks_line(rows) -> str:
     return text + "."
 
 
-def write_markdown(rows, path: Path, header: str) -> None:
+def notes(rows, header: str) -> list[str]:
+    """What the ladder refined (its header), its reference rung, the ranks and the default's verdict."""
     ref = next((r for r in rows if r.get("is_reference")), {})
+    return [header, f"Reference rung: `{ref.get('case', REFERENCE)}` "
+            f"({fmt(ref.get('dofs'), 'd')} dofs, {fmt(ref.get('ranks'), 'd')} rank(s), solve {fmt(ref.get(TIME_KEY), '.1f')} s, "
+            f"travel {fmt(ref.get('travel_mm'), '.3f')} mm, status {ref.get('status', 'missing')}).", ranks_line(rows),
+            default_verdict(rows)]
+
+
+def write_markdown(rows, path: Path, header: str) -> None:
+    lines = notes(rows, header)
     text = "\n".join([
-        "# FEM fidelity ladder", "", header, "", f"Reference rung: `{ref.get('case', REFERENCE)}` "
-        f"({fmt(ref.get('dofs'), 'd')} dofs, {fmt(ref.get('ranks'), 'd')} rank(s), solve {fmt(ref.get(TIME_KEY), '.1f')} s, travel "
-        f"{fmt(ref.get('travel_mm'), '.3f')} mm, status {ref.get('status', 'missing')}).", "", ranks_line(rows), "",
-        default_verdict(rows), "", markdown_table(rows, MD_COLUMNS), "",
+        "# FEM fidelity ladder", "", *(x for line in lines for x in (line, "")), markdown_table(rows, MD_COLUMNS), "",
         "error % = max(MAE x / reference travel, MAE Fy / reference max Fy); Pareto = no rung with a shorter "
         "solve time has a smaller error. solve s = time stepping incl. the initial placement; wall s adds "
         "meshing and the one-off form compilation (cached across runs). ν = 0.49 rungs include the change of "
@@ -380,6 +386,8 @@ def report(rows, out_dir: Path, header: str = "") -> list[dict]:
     out_dir = Path(out_dir)
     rows = add_errors(rows, out_dir)
     write_csv(out_dir / "fidelity.csv", rows, CSV_COLUMNS)
+    write_json(out_dir / "fidelity.json", {"schema": 1, "git_commit": provenance.git_commit(),
+                                           "notes": notes(rows, header)}, indent=2)
     write_markdown(rows, out_dir / "fidelity.md", header)
     plot_pareto(rows, out_dir / "fidelity_pareto.png")
     return rows

@@ -29,7 +29,7 @@ from pathlib import Path
 
 from deapull import provenance, scene as scenes
 from deapull.errors import InputError
-from deapull.io import cell as fmt, markdown_table, write_csv, write_text
+from deapull.io import cell as fmt, markdown_of, table_record, write_csv, write_json, write_text
 from deapull.workflows.fidelity import protocol_overrides
 from deapull.workflows.runner import Case, run_cases
 
@@ -168,18 +168,27 @@ MD_COLUMNS = (("case", "case", ""), ("converged", "converged", ""), ("as expecte
               ("wall s", "wall_s", ".1f"), ("outcome", "outcome", ""))
 
 
-def write_markdown(rows, path: Path, header: str) -> None:
-    pullin = [r for r in rows if r["expected"] == INSTABILITY]
-    lines = ["# FEM stability: stiff and extreme cases", "", header, "", markdown_table(rows, MD_COLUMNS), ""]
-    if pullin:
+def stability_results(rows, header: str) -> dict:
+    """The suite's results (stability.json): the header, the table (:func:`deapull.io.table_record`),
+    the pull-in notes and the cases not as expected."""
+    notes = []
+    for r in (r for r in rows if r["expected"] == INSTABILITY):
+        notes.append(f"`{r['case']}`: {'detected at V = ' + format(r['instability_V'], '.4g') + ' V' if math.isfinite(r['instability_V']) else 'not detected'}; "
+                     f"largest tip log-slope d ln|tip| / d ln V {fmt(r.get('tip_log_slope_max'), '.3g')} "
+                     f"(2 = small-strain V^2 law), voltage-increment collapse {fmt(r.get('dV_collapse'), '.3g')}x, "
+                     f"max tip deflection {fmt(r.get('max_tip_deflection_mm'), '.3g')} mm.")
+    return {"schema": 1, "git_commit": provenance.git_commit(), "header": header,
+            "table": table_record(rows, MD_COLUMNS), "pull_in": notes,
+            "not_as_expected": [r["case"] for r in rows if not r["as_expected"]]}
+
+
+def write_markdown(result: dict, path: Path) -> None:
+    lines = ["# FEM stability: stiff and extreme cases", "", result["header"], "", markdown_of(result["table"]), ""]
+    if result["pull_in"]:
         lines += ["Pull-in (electromechanical instability) detection:", ""]
-        for r in pullin:
-            lines.append(f"* `{r['case']}`: {'detected at V = ' + format(r['instability_V'], '.4g') + ' V' if math.isfinite(r['instability_V']) else 'not detected'}; "
-                         f"largest tip log-slope d ln|tip| / d ln V {fmt(r.get('tip_log_slope_max'), '.3g')} "
-                         f"(2 = small-strain V^2 law), voltage-increment collapse {fmt(r.get('dV_collapse'), '.3g')}x, "
-                         f"max tip deflection {fmt(r.get('max_tip_deflection_mm'), '.3g')} mm.")
+        lines += [f"* {note}" for note in result["pull_in"]]
         lines.append("")
-    unexpected = [r["case"] for r in rows if not r["as_expected"]]
+    unexpected = result["not_as_expected"]
     lines.append(f"Cases not as expected: {', '.join(unexpected) if unexpected else 'none'}.")
     write_text(path, "\n".join(lines) + "\n")
 
@@ -197,7 +206,9 @@ def run_stability(out_dir, comm, protocol: str = "quick", names=None, overrides=
               f"{' (1 s ramp, base step 0.01 s)' if protocol == 'quick' else ''}, {comm.size} MPI rank(s), "
               f"{ranks_per_case} per case; extra --set: {' '.join(overrides) or 'none'}. {provenance.summary()}.")
     write_csv(out_dir / "stability.csv", rows, CSV_COLUMNS)
-    write_markdown(rows, out_dir / "stability.md", header)
+    result = stability_results(rows, header)
+    write_json(out_dir / "stability.json", result, indent=2)
+    write_markdown(result, out_dir / "stability.md")
     return rows
 
 

@@ -137,6 +137,9 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     out = tmp_path / "report"
     summary = report.build(out, inputs, progress=False)
     assert summary["missing"] == ["report-fields"]
+    # the page is built from results files (CSV, JSON, datasets, figures), never a stage's Markdown:
+    # the fixture's studies write none, and a Markdown source would be registered here
+    assert summary["sources"] and not [s["path"] for s in summary["sources"] if s["path"].endswith(".md")]
     html = (out / "index.html").read_text()
     page = _parse(out / "index.html")
     assert not page.external
@@ -162,19 +165,13 @@ def test_report_with_every_study_links_each_paper_number_to_its_row(tmp_path):
     assert "--setup C3 --fidelity resolved --out" in fid
     # and which rung ran on more ranks than the others (its time is shorter than one core's)
     assert "Ranks per rung: 1, except ref on 2" in fid
-    # a ladder's CSV names its fidelity, so the hint keeps it with or without the header line
-    md = (inputs.fidelity / "fidelity.md").read_text()
-    (inputs.fidelity / "fidelity.md").unlink()
+    # the ladder's CSV names its fidelity, so the hint keeps it without the notes file, which the page
+    # then names as missing
+    (inputs.fidelity / "fidelity.json").unlink()
     report.build(tmp_path / "r2", inputs, progress=False)
     fid2 = (tmp_path / "r2" / "report.md").read_text().split('<a id="fidelity"></a>')[1].split('<a id="stability"></a>')[0]
     assert "--setup C3 --fidelity resolved --out" in fid2 and "fidelity `resolved`" not in fid2
-    # a ladder written before the column: its header line still names it
-    rows = read_csv(inputs.fidelity / "fidelity.csv")
-    write_csv(inputs.fidelity / "fidelity.csv", rows, [k for k in rows[0] if k != "fidelity"])
-    (inputs.fidelity / "fidelity.md").write_text(md)
-    report.build(tmp_path / "r3", inputs, progress=False)
-    fid3 = (tmp_path / "r3" / "report.md").read_text().split('<a id="fidelity"></a>')[1].split('<a id="stability"></a>')[0]
-    assert "--setup C3 --fidelity resolved --out" in fid3
+    assert "fidelity.json" in fid2
     points = list(csv.DictReader(open(out / "tables" / "error-time-points.csv")))
     assert [p["label"] for p in points if p["group"] == "FEM ladder"] == ["ref (2 ranks)"]
     assert re.findall(r"<td>(.*?)</td>", re.search(r'<tr id="fid-ref">(.*?)</tr>', html).group(1))[:5] == [
@@ -254,17 +251,17 @@ def _fake_studies(inputs: report.Inputs) -> None:
                     steps=50, wall_s=2.0, mae_x_mm=0.01, error_pct=1.5, is_reference=False, is_default=True)],
               ("case", "kind", "fidelity", "status", "elements", "dofs", "ranks", "steps", "wall_s", "mae_x_mm", "error_pct",
                "is_reference", "is_default"))
-    (inputs.fidelity / "fidelity.md").write_text(
-        "# FEM fidelity ladder\n\nScene `coin_pull`, fidelity `resolved`, setup `C3`, rungs `quick`.\n\n"
-        "Reference rung: `ref` (900 dofs).\n\nRanks per rung: 1, except ref on 2: the solve time of that rung is "
-        "not on the others' one-core scale.\n\nShipped default (default, hex Q2): error 1.50 %.\n\n"
-        "| case |\n|---|\n| ref |\n")
+    (inputs.fidelity / "fidelity.json").write_text(json.dumps({"schema": 1, "notes": [
+        "Scene `coin_pull`, fidelity `resolved`, setup `C3`, rungs `quick`.", "Reference rung: `ref` (900 dofs).",
+        "Ranks per rung: 1, except ref on 2: the solve time of that rung is not on the others' one-core scale.",
+        "Shipped default (default, hex Q2): error 1.50 %."]}))
     _png(inputs.fidelity / "fidelity_pareto.png")
     inputs.stability.mkdir(parents=True)
-    (inputs.stability / "stability.md").write_text(
-        "# FEM stability\n\nBase: `coin_pull` C3. git 0123456789ab, dolfinx 0.5.2.\n\n"
-        "| case | converged | outcome |\n|---|---|---|\n| baseline | yes | converged |\n"
-        "| pullin | no | failed: DIVERGED_MAX_IT |\n\n* `pullin`: detected at V = 478 V.\n")
+    (inputs.stability / "stability.json").write_text(json.dumps(
+        {"schema": 1, "header": "Base: `coin_pull` C3. git 0123456789ab, dolfinx 0.5.2.",
+         "table": {"headers": ["case", "converged", "outcome"],
+                   "rows": [["baseline", "yes", "converged"], ["pullin", "no", "failed: DIVERGED_MAX_IT"]]},
+         "pull_in": ["`pullin`: detected at V = 478 V."], "not_as_expected": []}))
     (inputs.stability / "stability.csv").write_text("case\nbaseline\npullin\n")
     rows = [dict(set=i, train=f"C{i}", val=f"C{i + 1}", test=f"C{i + 2}", model=m, mae_x_m=e, mae_Fx_N=1e-4,
                  mae_Fy_N=2e-4, x_error_pct_travel=3.0, rollout_ms=40.0, diverged=False)
@@ -280,7 +277,8 @@ def _fake_studies(inputs: report.Inputs) -> None:
                 for p, it in (("mpc", 150), ("pd", 1500)) for c in (1, 2) for n in (0.0, 1e-3) for k in range(3)]
     write_csv(inputs.control / "control.csv", episodes, list(episodes[0]))
     (inputs.control / "run.json").write_text(json.dumps({"git_commit": "fedcba9876543210"}))
-    (inputs.control / "table.md").write_text("| policy | reached |\n|---|---|\n| mpc | 3/3 |\n| pd | 3/3 |\n")
+    (inputs.control / "summary.json").write_text(json.dumps(
+        {"schema": 2, "groups": [], "table": {"headers": ["policy", "reached"], "rows": [["mpc", "3/3"], ["pd", "3/3"]]}}))
     np.savez(inputs.control / "traces.npz", **{f"{e['policy']}|{e['plant']}|{e['noise_std_m']:g}|{e['episode']}|x_m":
                                               np.linspace(0, -1e-3, 20 + 5 * e["episode"]) for e in episodes})
     for noise in ("0", "0.001"):
@@ -301,9 +299,9 @@ def _fake_studies(inputs: report.Inputs) -> None:
          "sweep": {"wall_s": 70.0, "np": 2},
          "reference": {"file": "contact_reference.json", "x_at_t_mm": -1.1, "time_s": 0.95, "bound_percent": 0.5}}))
     inputs.protocols.mkdir(parents=True)
-    (inputs.protocols / "protocols.md").write_text(
-        "# Held-out protocols\n\n| model | ramp | triangle |\n|---|---|---|\n| f (tip memory) | 0.06 | 0.16 |\n"
-        "| NN | 7.74 | 5.36 |\n")
+    (inputs.protocols / "protocols.json").write_text(json.dumps(
+        {"tables": [{"headers": ["model", "ramp", "triangle"],
+                     "rows": [["f (tip memory)", "0.06", "0.16"], ["NN", "7.74", "5.36"]]}]}))
     _png(inputs.protocols / "protocols.png")
     inputs.bench_control.mkdir(parents=True)
     (inputs.bench_control / "bench_control.json").write_text(json.dumps(

@@ -9,7 +9,6 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -139,9 +138,6 @@ def _recorded_commit(path: Path) -> str:
                 return str(ds.attrs.get("git_commit", ""))[:12]
         if path.suffix == ".json":
             return str(json.loads(path.read_text()).get("git_commit", ""))[:12]
-        if path.suffix == ".md":
-            m = re.search(r"\bgit ([0-9a-f]{7,40})\b", path.read_text())
-            return m.group(1)[:12] if m else ""
     except (OSError, ValueError, AttributeError):
         return ""
     return ""

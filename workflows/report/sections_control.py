@@ -11,7 +11,7 @@ from deapull.paper import (CONTROL, CONTROL_NOISE_M, INFER_ERROR_PCT, INFER_MASS
                            INFER_MU_B_ITERATIONS, MPC_S_PER_ITERATION)
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.plots import BAND_PERCENTILES, plot_bands
-from deapull.workflows.report.tabular import csv_text, fmt, markdown_tables, num, read_csv, run_config
+from deapull.workflows.report.tabular import csv_text, fmt, num, read_csv, run_config
 
 #: the band CSV keeps every k-th iteration (and the last), k chosen so a line has at most this many rows
 BAND_CSV_ROWS = 250
@@ -70,12 +70,14 @@ def section_control(rep: Report) -> Section:
             rep.claims.append(Claim(f"Iterations to target, {pol} ({paper_plant}, noise {paper_noise:g} m)",
                                     paper_it, ours, f"#control-{pol}",
                                     _fewer(float(np.median(its)) if its else None, paper_it)))
-        md = inputs.control / "table.md"
-        if md.is_file():
-            rep.source(md, sec)
-            tables = markdown_tables(md.read_text())
-            if tables:
-                sec.table(Table(*tables[0], caption="Per policy, plant and noise (`table.md` of the run)"))
+        summary = inputs.control / "summary.json"
+        table = json.loads(summary.read_text()).get("table") if summary.is_file() else None
+        if table:
+            rep.source(summary, sec)
+            sec.table(Table(table["headers"], table["rows"], caption="Per policy, plant and noise (`summary.json` of "
+                                                                     "the run)"))
+        else:
+            sec.lack(f"the run's table in `{summary}` (written by `deapull control`; re-run it)", "control")
         _bands(rep, sec, inputs.control)
         for pattern, cap in (("position_*.png", "coin position, mean and 25–75 % band per policy (Fig. 6)"),
                              ("voltage_*.png", "voltage per policy"),

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ from deapull.workflows.report import pictures, pictures_contact
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.inputs import SCENE, SETUPS, fields_run
 from deapull.workflows.report.plots import plot_sweep
-from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
+from deapull.workflows.report.tabular import fmt, num, read_csv
 
 
 #: issue 23's goal for the DEA's penetration into the table at the shipped penalty (µm)
@@ -361,17 +360,15 @@ def section_fidelity(rep: Report) -> Section:
     if not rep.found(csv_path, sec, "the fidelity ladder", "fidelity"):
         return sec
     rows = read_csv(csv_path)
-    md = inputs.fidelity / "fidelity.md"
-    # the ladder's own fidelity, so that the hint below reuses its rungs: its CSV's column, or for a
-    # ladder written before the column, its header line
+    results = inputs.fidelity / "fidelity.json"
+    # the ladder's own fidelity (its CSV's column), so that the hint below reuses its rungs
     named = {r["fidelity"] for r in rows if r.get("fidelity")}
-    if md.is_file():   # what the ladder refined (its scene and fidelity), its reference and the verdict
-        for line in md.read_text().splitlines():
-            if line.startswith(("Scene `", "Reference rung:", "Ranks per rung:", "Shipped default")):
-                sec.p(line)
-            header = re.match(r"Scene `[^`]*`, fidelity `([^`]*)`", line)
-            if header and not named:
-                named = {header.group(1)}
+    if results.is_file():   # what the ladder refined (its scene and fidelity), its reference and the verdict
+        rep.source(results, sec)
+        for line in json.loads(results.read_text()).get("notes", []):
+            sec.p(line)
+    else:
+        sec.lack(f"the ladder's notes `{results}` (written by `deapull fidelity`; re-run it: it resumes)", "fidelity")
     fidelity = named.pop() if len(named) == 1 else None
     fidelity_arg = f" --fidelity {fidelity}" if fidelity and fidelity != AS_WRITTEN else ""
     png = inputs.fidelity / "fidelity_pareto.png"
@@ -407,21 +404,16 @@ def _yes(value: str) -> str:
 def section_stability(rep: Report) -> Section:
     sec = Section("stability", "Stability: stiff and extreme cases")
     inputs = rep.inputs
-    md = inputs.stability / "stability.md"
-    if not rep.found(md, sec, "the stability table", "stability"):
+    path = inputs.stability / "stability.json"
+    if not rep.found(path, sec, "the stability results", "stability"):
         return sec
-    text = md.read_text()
-    tables = markdown_tables(text)
-    for line in text.splitlines():
-        if line.startswith("Base:"):
-            sec.p(line)
-    if tables:
-        headers, rows = tables[0]
-        sec.table(Table(headers, rows, [f"stab-{r[0]}" for r in rows], caption="One row per case"))
-        conv = sum(1 for r in rows if len(r) > 1 and r[1] == "yes")
-        rep.claims.append(Claim("Robustness (not in the paper)", "–", f"{conv}/{len(rows)} cases converge; the "
-                                "rest fail as expected (pull-in, ν = 0.5 displacement)", "#stability"))
-    bullets = [line[2:] for line in text.splitlines() if line.startswith("* ")]
-    if bullets:
-        sec.bullets(bullets)
+    result = json.loads(path.read_text())
+    sec.p(result["header"])
+    headers, rows = result["table"]["headers"], result["table"]["rows"]
+    sec.table(Table(headers, rows, [f"stab-{r[0]}" for r in rows], caption="One row per case"))
+    conv = sum(1 for r in rows if len(r) > 1 and r[1] == "yes")
+    rep.claims.append(Claim("Robustness (not in the paper)", "–", f"{conv}/{len(rows)} cases converge; the "
+                            "rest fail as expected (pull-in, ν = 0.5 displacement)", "#stability"))
+    if result["pull_in"]:
+        sec.bullets(result["pull_in"])
     return sec

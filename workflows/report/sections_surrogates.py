@@ -9,7 +9,7 @@ import numpy as np
 from deapull.paper import ABAQUS_S, ROLLOUT_MS, SIM_ERROR_PCT, TABLE2, TABLE2_MAE
 from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.inputs import step_done
-from deapull.workflows.report.tabular import fmt, markdown_tables, num, read_csv
+from deapull.workflows.report.tabular import fmt, num, read_csv
 
 MODEL_LABELS = {"f": "f (paper's law)", "f-coulomb": "f (tip contact)", "nn": "NN", "lstm": "LSTM"}
 
@@ -183,14 +183,18 @@ def _verdict(ours, paper) -> tuple[str, str]:
 def section_protocols(rep: Report) -> Section:
     sec = Section("protocols", "Surrogates on held-out voltage protocols")
     inputs = rep.inputs
-    md = inputs.protocols / "protocols.md"
-    if not md.is_file() and not step_done("excitation", inputs):
+    path = inputs.protocols / "protocols.json"
+    if not path.is_file() and not step_done("excitation", inputs):
         sec.lack(f"the excitation datasets under `{inputs.excitation}`", "excitation")
-    if not rep.found(md, sec, "the held-out-protocol table", "experiments-protocols"):
+    if not rep.found(path, sec, "the held-out-protocol results", "experiments-protocols"):
         return sec
-    tables = markdown_tables(md.read_text())
-    for k, (headers, rows) in enumerate(tables[:2]):
-        sec.table(Table(headers, rows, [f"proto-{k}-{i}" for i in range(len(rows))],
+    tables = json.loads(path.read_text()).get("tables")
+    if not tables:
+        sec.lack(f"the tables of `{path}` (written by an older `deapull experiments-protocols`; re-run it)",
+                 "experiments-protocols")
+        return sec
+    for k, table in enumerate(tables[:2]):
+        sec.table(Table(table["headers"], table["rows"], [f"proto-{k}-{i}" for i in range(len(table["rows"]))],
                         caption="x error in % of travel on held-out protocols and coins" if k == 0 else ""))
     png = inputs.protocols / "protocols.png"
     if png.is_file():

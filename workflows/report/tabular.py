@@ -5,7 +5,6 @@ import csv
 import io
 import json
 import math
-import re
 from pathlib import Path
 
 
@@ -47,23 +46,3 @@ def num(row: dict, key: str) -> float | None:
     except (TypeError, ValueError):
         return None
     return v if math.isfinite(v) else None
-
-
-def markdown_tables(text: str) -> list[tuple[list[str], list[list[str]]]]:
-    """Every pipe table of a Markdown text as (headers, rows)."""
-    tables, current = [], []
-    for line in text.splitlines() + [""]:
-        if line.strip().startswith("|"):
-            current.append(line.strip())
-            continue
-        if len(current) >= 2:
-            cells = [_split_row(r) for r in current]
-            tables.append((cells[0], [c for c in cells[2:]]))
-        current = []
-    return tables
-
-
-def _split_row(line: str) -> list[str]:
-    cells = re.split(r"(?<!\\)\|", line.strip().strip("|"))
-    return [c.strip().replace("\\|", "|") for c in cells]
-
