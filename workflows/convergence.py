@@ -79,6 +79,11 @@ def load_study(name_or_path: str | Path) -> dict:
     unknown = [n for n in named if n and n not in cases]
     if unknown:
         raise InputError(f"{path}: [checks] names {unknown[0]!r}, not a case; cases: {', '.join(cases)}")
+    pairs = checks.get("pairs", {})
+    stray = [n for n in checks.get("converged", []) if n not in pairs]
+    if stray:
+        raise InputError(f"{path}: [checks] converged names {stray[0]!r}, not a pair of [checks.pairs]; pairs: "
+                         f"{', '.join(pairs) or 'none'}")
     study["path"] = str(path)
     return study
 
@@ -93,14 +98,25 @@ def cases_of(study: dict) -> list:
 
 # --- the numbers -----------------------------------------------------------------------------
 
+#: Roache's safety factor and order for a ladder outside its asymptotic range (no usable observed order)
+FALLBACK_SAFETY, FALLBACK_ORDER = 3.0, 1.0
+
+
 def observed(coarse: float, middle: float, fine: float, ratio: float, safety: float = 1.25) -> dict:
-    """Observed order, Richardson value and the fine level's GCI (%) of one quantity on a ladder
-    (NaN where the ladder is not monotone)."""
+    """Observed order, Richardson value and the fine level's GCI (%) of one quantity on a ladder.
+
+    Where the ladder turns back (not monotone) there is no order; where it is monotone but its
+    steps do not shrink (order ≤ 0) the order is reported and there is no Richardson value or GCI:
+    the ladder is not in its asymptotic range. ``gci_fixed_order_percent`` is Roache's fallback for
+    such a ladder: the fine step with the order fixed at 1 and a safety factor of 3."""
     d_cm, d_mf = middle - coarse, fine - middle
-    out = {"values": [coarse, middle, fine], "monotone": bool(d_cm * d_mf > 0)}
+    out = {"values": [coarse, middle, fine], "monotone": bool(d_cm * d_mf > 0),
+           "gci_fixed_order_percent": 100.0 * FALLBACK_SAFETY * abs(d_mf / fine) / (ratio ** FALLBACK_ORDER - 1.0)}
     if not out["monotone"] or d_mf == 0:
         return {**out, "observed_order": math.nan, "richardson": math.nan, "gci_percent": math.nan}
     p = math.log(d_cm / d_mf) / math.log(ratio)
+    if p <= 0:
+        return {**out, "observed_order": p, "richardson": math.nan, "gci_percent": math.nan}
     factor = ratio ** p - 1.0
     return {**out, "observed_order": p, "richardson": fine + d_mf / factor,
             "gci_percent": 100.0 * safety * abs(d_mf / fine) / factor}
@@ -139,7 +155,7 @@ def summarise(study: dict, metrics: dict) -> dict:
     default's error against the Richardson value; the checks. ``metrics``: case -> case_metrics."""
     s, checks = study["study"], study.get("checks", {})
     safety = float(s.get("safety_factor", 1.25))
-    ladders, richardson = {}, []
+    ladders, richardson, finest = {}, [], []
     for name, lad in study["ladders"].items():
         names, r = lad["cases"], float(lad["ratio"])
         if not all(n in metrics for n in names):
@@ -165,6 +181,7 @@ def summarise(study: dict, metrics: dict) -> dict:
                                 100.0 * (m[2]["x_at_t_mm"] / m[1]["x_at_t_mm"] - 1.0)],
             "observed_order_x_at_t": x["observed_order"], "x_at_t_mm": x["values"], "monotone": x["monotone"],
             "richardson_x_at_t_mm": x["richardson"], "gci_x_at_t_percent": x["gci_percent"],
+            "gci_fixed_order_x_at_t_percent": x["gci_fixed_order_percent"],
             "mae_x_mm": [e_cm, e_mf], "observed_order_mae_x": order_of_differences(e_cm, e_mf, r),
             "x_end_mm": end["values"], "observed_order_x_end": end["observed_order"],
             "peak_overlap_um": [c["peak_overlap_um"] for c in m],
@@ -172,6 +189,7 @@ def summarise(study: dict, metrics: dict) -> dict:
             "min_points": min(c["min_points"] for c in m),
         }
         richardson.append(x["richardson"])
+        finest.append(x["richardson"] if np.isfinite(x["richardson"]) else x["values"][-1])
     out = {"schema": SCHEMA, "study": s.get("name", Path(study["path"]).stem), "scene": s["scene"],
            "setup": s.get("setup"), "time_s": float(s["time_s"]), "safety_factor": safety, "ladders": ladders,
            "cases": {n: {k: v for k, v in m.items() if k not in ("t", "x")} for n, m in metrics.items()},
@@ -180,9 +198,22 @@ def summarise(study: dict, metrics: dict) -> dict:
     dt_change = (100.0 * abs(metrics[dt[1]]["x_at_t_mm"] / metrics[dt[0]]["x_at_t_mm"] - 1.0)
                  if len(dt) == 2 and all(n in metrics for n in dt) else math.nan)
     out["dt_change_percent"] = dt_change
+    out["pairs"] = {name: {"cases": pair, "change_percent": 100.0 * (metrics[pair[1]]["x_at_t_mm"]
+                                                                      / metrics[pair[0]]["x_at_t_mm"] - 1.0)}
+                    for name, pair in checks.get("pairs", {}).items() if all(n in metrics for n in pair)}
+    # a direction converged at the data fidelity's level (no ladder): its change on doubling is its error
+    converged = checks.get("converged", [])
+    out["converged_change_percent"] = (sum(abs(out["pairs"][n]["change_percent"]) for n in converged)
+                                       if all(n in out["pairs"] for n in converged) else math.nan)
     gcis = [lad["gci_x_at_t_percent"] for lad in ladders.values()]
     complete = all(lad["complete"] for lad in ladders.values()) and len(ladders) == len(study["ladders"])
-    out["bound_percent"] = (sum(gcis) + dt_change) if complete and gcis else math.nan
+    out["bound_percent"] = (sum(gcis) + dt_change + out["converged_change_percent"]) if complete and gcis \
+        else math.nan
+    # with Roache's fallback (order 1, safety factor 3) for a ladder outside its asymptotic range
+    fallback = [lad["gci_x_at_t_percent"] if np.isfinite(lad["gci_x_at_t_percent"])
+                else lad.get("gci_fixed_order_x_at_t_percent", math.nan) for lad in ladders.values()]
+    out["bound_fallback_percent"] = (sum(fallback) + dt_change + out["converged_change_percent"]) \
+        if complete and fallback else math.nan
     # the reference value: with errors that add, x* = Σ R_ladder - (n - 1) x(shared case)
     shared = _shared_case(study)
     if complete and shared in metrics and richardson and all(np.isfinite(richardson)):
@@ -190,13 +221,18 @@ def summarise(study: dict, metrics: dict) -> dict:
         out["reference_x_at_t_mm"] = base + sum(rv - base for rv in richardson)
     else:
         out["reference_x_at_t_mm"] = math.nan
+    # without a Richardson value, a ladder's finest level stands in for it (no extrapolation along it)
+    out["reference_fallback_x_at_t_mm"] = (
+        metrics[shared]["x_at_t_mm"] + sum(v - metrics[shared]["x_at_t_mm"] for v in finest)
+        if complete and shared in metrics and finest and all(np.isfinite(finest)) else math.nan)
     default = checks.get("default", "")
     if default in metrics and np.isfinite(out["reference_x_at_t_mm"]):
         out["default_case"] = default
         out["default_error_percent"] = 100.0 * (metrics[default]["x_at_t_mm"] / out["reference_x_at_t_mm"] - 1.0)
-    out["pairs"] = {name: {"cases": pair, "change_percent": 100.0 * (metrics[pair[1]]["x_at_t_mm"]
-                                                                      / metrics[pair[0]]["x_at_t_mm"] - 1.0)}
-                    for name, pair in checks.get("pairs", {}).items() if all(n in metrics for n in pair)}
+    if default in metrics and np.isfinite(out["reference_fallback_x_at_t_mm"]):
+        out["default_case"] = default
+        out["default_error_fallback_percent"] = 100.0 * (metrics[default]["x_at_t_mm"]
+                                                         / out["reference_fallback_x_at_t_mm"] - 1.0)
     return out
 
 
@@ -213,7 +249,7 @@ def _shared_case(study: dict) -> str:
 
 def bound_from_rungs(result: dict) -> float:
     """The bound (%) recomputed from the rungs' stored x(time_s) values alone: Σ GCI + the step's change."""
-    total = 0.0
+    total = result.get("converged_change_percent", 0.0)
     if not all(lad.get("complete", True) for lad in result["ladders"].values()):
         return math.nan
     for lad in result["ladders"].values():
@@ -231,6 +267,11 @@ def report_lines(result: dict) -> list[str]:
             ch = ", ".join("–" if c is None else f"{c:+.3f} %" for c in lad["changes_percent"])
             lines.append(f"  {name} ({lad['label']}): x = {xs} mm, incomplete; level to level {ch}")
             continue
+        if not np.isfinite(lad["gci_x_at_t_percent"]):
+            lines.append(f"  {name} ({lad['label']}): x = {xs} mm, order {lad['observed_order_x_at_t']:.2f}: not in "
+                         f"its asymptotic range (no Richardson value); with the order fixed at 1 and a safety "
+                         f"factor of 3, GCI {lad.get('gci_fixed_order_x_at_t_percent', math.nan):.3f} %")
+            continue
         lines.append(f"  {name} ({lad['label']}): x = {xs} mm, order {lad['observed_order_x_at_t']:.2f} "
                      f"(MAE of x(t) {lad['mae_x_mm'][0] * 1e3:.2f} / {lad['mae_x_mm'][1] * 1e3:.2f} um, order "
                      f"{lad['observed_order_mae_x']:.2f}), Richardson {lad['richardson_x_at_t_mm']:.4f} mm, "
@@ -238,8 +279,18 @@ def report_lines(result: dict) -> list[str]:
                      + " / ".join(f"{v:.2f}" for v in lad["peak_overlap_um"])
                      + f" um; fewest contact points {lad['min_points']}")
     lines.append(f"  halving the step: {result['dt_change_percent']:.3f} %")
-    lines.append(f"  bound (sum of the GCIs and the step's change): {result['bound_percent']:.3f} % (goal <= 1 %)")
+    if result.get("converged_change_percent"):
+        lines.append(f"  the converged directions' change on doubling: {result['converged_change_percent']:.3f} %")
+    lines.append(f"  bound (sum of the GCIs, the step's change and the converged directions'): "
+                 f"{result['bound_percent']:.3f} % (goal <= 1 %)")
+    if not np.isfinite(result["bound_percent"]) and np.isfinite(result.get("bound_fallback_percent", math.nan)):
+        lines.append(f"  bound with Roache's fallback for the ladders outside their asymptotic range: "
+                     f"{result['bound_fallback_percent']:.3f} %")
     lines.append(f"  reference x({t:g} s) = {result['reference_x_at_t_mm']:.4f} mm")
+    if not np.isfinite(result["reference_x_at_t_mm"]) and "default_error_fallback_percent" in result:
+        lines.append(f"  with the finest level of a ladder without a Richardson value in its place: "
+                     f"{result['reference_fallback_x_at_t_mm']:.4f} mm; the data fidelity "
+                     f"{result['default_error_fallback_percent']:+.3f} % against it (goal within 2 %)")
     if "default_error_percent" in result:
         lines.append(f"  the data fidelity ({result['default_case']}): {result['default_error_percent']:+.3f} % "
                      f"against it (goal within 2 %)")

@@ -163,9 +163,9 @@ def test_a_fidelity_entry_for_one_protocol_applies_only_under_that_protocol(tmp_
     release = ("load.protocol='release'", "load.ramp_time_s=1.0", "load.end_time_s=1.0")
     ramp = scenes.load(path, setup="C1", overrides=sets)
     pulled = scenes.load(path, setup="C1", overrides=(*release, *sets))
-    assert (ramp.mesh.rim_band_m, ramp.mesh.rim_band_divisions) == ((0.003, 0.005), 4)
+    assert (ramp.mesh.rim_band_m, ramp.mesh.rim_band_divisions) == ((0.003, 0.005), 8)
     assert (pulled.mesh.rim_band_m, pulled.mesh.rim_band_divisions) == ((0.0015, 0.004), 5)
-    assert dataclasses.replace(pulled.mesh, rim_band_m=ramp.mesh.rim_band_m, rim_band_divisions=4) == ramp.mesh
+    assert dataclasses.replace(pulled.mesh, rim_band_m=ramp.mesh.rim_band_m, rim_band_divisions=8) == ramp.mesh
     assert (ramp.table.penalty_N_m3, pulled.table.penalty_N_m3) == (1e12, 2e12)
     assert (pulled.contact, pulled.coin, pulled.solver) == (ramp.contact, ramp.coin, ramp.solver)
     # the protocol may come after the entry; a later --set still wins
