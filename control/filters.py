@@ -36,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deapull.errors import InputError
+
 FILTERS = ("none", "kf")
 #: what an MPC plans from (:class:`EstimatorConfig`)
 ESTIMATORS = ("bias", "kf", "none")
@@ -65,7 +67,6 @@ class EstimatorConfig:
     innovation_window: int = 0
 
     def __post_init__(self):
-        from deapull.errors import InputError
         if self.kind not in ESTIMATORS:
             raise InputError(f"mpc.estimator.kind = {self.kind!r}: choose one of {', '.join(ESTIMATORS)}")
         if not (math.isfinite(self.process_std_m) and self.process_std_m > 0):

@@ -150,6 +150,10 @@ IDENTIFIED_CRLB = 0.1
 UNSTALL = True
 
 
+#: the MPC's inference when none is given: Levenberg–Marquardt on the one-step loss
+MPC_INFERENCE = InferenceConfig(optimizer="lm")
+
+
 @dataclass(frozen=True)
 class MPCConfig:
     """Settings of the MPC policy: the solver, the estimator, the inference and the terminal policy.
@@ -205,7 +209,7 @@ class MPCConfig:
     cost: str = "scaled"
     engine: str = "auto"
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
-    inference: InferenceConfig | None = field(default_factory=lambda: InferenceConfig(optimizer="lm"))
+    inference: InferenceConfig | None = field(default_factory=lambda: MPC_INFERENCE)
     rate_V: float = 0.0
     creep_V: float = 0.5
     approach_m: float = 0.0
@@ -251,7 +255,7 @@ def _apply(config, table: dict, where: str):
             raise InputError(f"{where}.{key}: unknown key; allowed: {', '.join(allowed)}")
         current = getattr(config, key)
         if key == "inference" and current is None and isinstance(value, dict):
-            current = InferenceConfig(optimizer="lm")
+            current = MPC_INFERENCE
         if is_dataclass(current):
             if not isinstance(value, dict):
                 raise InputError(f"{where}.{key} = {value!r}: expected a table of {type(current).__name__} keys")

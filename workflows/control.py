@@ -40,8 +40,8 @@ from tqdm import tqdm
 from deapull import provenance
 from deapull import scene as scenes
 from deapull.control.harness import PHI_FIELDS, Bench, Episode, Task, run_episode
-from deapull.control.inference import COIN_PRIOR, PRIOR_NAMES, InferenceConfig, named_prior
-from deapull.control.mpc_policy import MPCConfig
+from deapull.control.inference import COIN_PRIOR, PRIOR_NAMES, named_prior
+from deapull.control.mpc_policy import MPC_INFERENCE, MPCConfig
 from deapull.control.policies import SAC_FILE
 from deapull.surrogate import store
 from deapull.surrogate.data import load_setup
@@ -328,7 +328,7 @@ def check_plant_phi(config: ControlConfig) -> None:
 
 def check_inference(config: ControlConfig) -> None:
     """``mpc.inference.fields`` (cheap: before any folder is looked at; the rest is checked where
-    :class:`InferenceConfig` is made)."""
+    :class:`~deapull.control.inference.InferenceConfig` is made)."""
     inference = config.mpc.inference
     chosen = None if inference is None else inference.fields
     unknown = [f for f in chosen or () if f not in PLANT_PHI_FIELDS]
@@ -381,7 +381,7 @@ def mpc_settings(config: ControlConfig, name: str = "mpc") -> MPCConfig:
         mpc = replace(mpc, estimator=replace(mpc.estimator, kind="kf"))
     inference = None
     if config.mpc_phi == "infer":
-        inference = replace(mpc.inference or InferenceConfig(optimizer="lm"), prior=named_prior(config.phi_prior))
+        inference = replace(mpc.inference or MPC_INFERENCE, prior=named_prior(config.phi_prior))
     return replace(mpc, inference=inference)
 
 

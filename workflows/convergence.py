@@ -216,15 +216,13 @@ def summarise(study: dict, metrics: dict) -> dict:
         if complete and fallback else math.nan
     # the reference value: with errors that add, x* = Σ R_ladder - (n - 1) x(shared case)
     shared = _shared_case(study)
-    if complete and shared in metrics and richardson and all(np.isfinite(richardson)):
-        base = metrics[shared]["x_at_t_mm"]
-        out["reference_x_at_t_mm"] = base + sum(rv - base for rv in richardson)
-    else:
-        out["reference_x_at_t_mm"] = math.nan
+    def additive(values):
+        ok = complete and shared in metrics and values and all(np.isfinite(values))
+        return metrics[shared]["x_at_t_mm"] + sum(v - metrics[shared]["x_at_t_mm"] for v in values) if ok else math.nan
+
+    out["reference_x_at_t_mm"] = additive(richardson)
     # without a Richardson value, a ladder's finest level stands in for it (no extrapolation along it)
-    out["reference_fallback_x_at_t_mm"] = (
-        metrics[shared]["x_at_t_mm"] + sum(v - metrics[shared]["x_at_t_mm"] for v in finest)
-        if complete and shared in metrics and finest and all(np.isfinite(finest)) else math.nan)
+    out["reference_fallback_x_at_t_mm"] = additive(finest)
     default = checks.get("default", "")
     if default in metrics and np.isfinite(out["reference_x_at_t_mm"]):
         out["default_case"] = default
