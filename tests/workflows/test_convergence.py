@@ -49,7 +49,7 @@ def test_a_study_naming_a_case_it_lacks_is_refused_before_any_run(tmp_path):
     with pytest.raises(InputError, match="unknown study"):
         convergence.load_study("no_such_study")
     shipped = convergence.load_study("contact_reference")
-    assert shipped["checks"]["corner"] == "layers-1" and "rim band x 2" in shipped["checks"]["converged"]
+    assert shipped["checks"]["corner"] == "default" and "rim band x 2" in shipped["checks"]["converged"]
 
 
 def test_the_committed_reference_bound_is_its_rungs_bound():
