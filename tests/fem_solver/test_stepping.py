@@ -438,3 +438,45 @@ def test_the_placement_assembles_a_jacobian_at_every_iteration_and_has_no_stall_
     else:
         assert p.jacobian_reuses > 0
     assert not p._placing                         # the block restores the scene's Newton
+
+
+def test_a_fresh_jacobian_no_faster_than_the_kept_one_is_not_refactorised_again(tmp_path):
+    """Where the friction's regularisation is far below a Newton step (the coin's onset, data
+    fidelity), fresh Jacobians converge at ~0.9 per iteration like the kept one: a residual falling
+    by 0.9 per iteration refactorises once, then keeps that Jacobian for the first half of the
+    iterations, and refactorises at every slow iteration after it (as below the ratio it always
+    does); one that falls by 0.5 keeps the Jacobian throughout. Broken once (the rule removed):
+    19 factorisations in the first 20 iterations."""
+    from deapull.fem_solver import problem
+    p = _stepper(tmp_path, "gravity_m_s2=0", "dea.width_m=0.004", "mesh.n_length=4",
+                 "solver.jacobian_reuse_ratio=0.6", scene="free_bending", setup=None).p
+
+    class Snes:               # the SNES calls _eval_J with its iteration number and residual norm
+        def __init__(self):
+            self.it, self.fnorm = 0, 0.0
+
+        def getIterationNumber(self):
+            return self.it
+
+        def getFunctionNorm(self):
+            return self.fnorm
+
+        def getTolerances(self):
+            return p.snes.getTolerances()
+
+    def assemblies(rate, n):
+        snes, counts = Snes(), []
+        for it in range(n):
+            snes.it, snes.fnorm = it, 1e-3 * rate ** it
+            before = p.jacobian_assemblies
+            p._eval_J(snes, None, p.A, p.A)
+            counts.append(p.jacobian_assemblies - before)
+        return counts
+
+    assemblies(0.5, 1)                       # a factorised Jacobian in hand
+    half = p.scene.solver.newton_max_it // 2
+    slow = assemblies(0.9, 30)
+    assert sum(slow[:half]) == 1 and slow[1] == 1          # the one fresh Jacobian of the solve
+    assert all(slow[half:])                                 # the second half: fresh at every slow iteration
+    assert sum(assemblies(0.5, 30)) == 0
+    assert 0.9 > p.scene.solver.jacobian_reuse_ratio and problem.FRESH_RATE_MAX >= 0.9
