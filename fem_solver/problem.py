@@ -28,11 +28,6 @@ SNES_REASONS = {getattr(PETSc.SNES.ConvergedReason, k): k for k in dir(PETSc.SNE
 
 
 PARALLEL_FACTOR_PACKAGES = ("mumps",)
-#: keep the factorised Jacobian while an iteration's residual ratio is at most (that of the last
-#: fresh Jacobian in the solve) ** this: where the friction's regularisation is far below a Newton
-#: step (the coin's onset), fresh Jacobians converge at ~0.9 per iteration like the kept one, and
-#: cost 30 kept-Jacobian iterations each
-FRESH_RATE_EXPONENT, FRESH_RATE_MAX = 0.5, 0.95
 #: a Newton solve whose residual has not fallen below STALL_FACTOR x its smallest value for
 #: STALL_ITERATIONS iterations has stalled and is ended as diverged (:meth:`DEAProblem._converged`):
 #: at a friction reversal full Newton steps cycle through 4 residuals for all 40 iterations, each with a
@@ -316,7 +311,6 @@ class DEAProblem:
             opts[prefix + "mat_mumps_icntl_14"] = MUMPS_WORKSPACE_RELAXATION
         self.snes = snes
         self._jacobian_ready, self._last_fnorm, self._placing = False, 0.0, False
-        self._fresh_at, self._fresh_rate = -1, None
         self._first_fnorm, self._best_fnorm, self._best_it, self.stalled = 0.0, 0.0, 0, False
         self.jacobian_assemblies = self.jacobian_reuses = 0
 
@@ -404,23 +398,13 @@ class DEAProblem:
         """
         it, fnorm = snes.getIterationNumber(), snes.getFunctionNorm()
         r = 0.0 if self._placing else self.scene.solver.jacobian_reuse_ratio
-        rate = fnorm / self._last_fnorm if it > 0 and self._last_fnorm > 0 else 0.0
-        if it == 0:
-            self._fresh_at, self._fresh_rate = -1, None
-        elif self._fresh_at == it - 1:
-            self._fresh_rate = rate       # what the last fresh Jacobian achieved in this solve
-        # a fresh Jacobian that converged no faster than the kept one is not worth its factorisation:
-        # in the first half of the solve's iterations, while the kept one converges (the second
-        # half, and a kept one slower than FRESH_RATE_MAX: fresh Jacobians as before)
-        no_better = (self._fresh_rate is not None and it < snes.getTolerances()[3] // 2
-                     and rate <= min(self._fresh_rate ** FRESH_RATE_EXPONENT, FRESH_RATE_MAX))
-        reuse = r > 0 and self._jacobian_ready and (it == 0 or rate <= r or no_better)
+        reuse = r > 0 and self._jacobian_ready and (it == 0 or fnorm <= r * self._last_fnorm)
         self._last_fnorm = fnorm
         if reuse:
             self.jacobian_reuses += 1
             return
         compat.assemble_jacobian(A, self.J_form, self.bcs)
-        self._jacobian_ready, self._fresh_at = True, it
+        self._jacobian_ready = True
         self.jacobian_assemblies += 1
 
     def set_load(self, voltage: float, X: float, dt: float) -> None:

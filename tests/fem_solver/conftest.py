@@ -44,19 +44,18 @@ def balance_bound_N(scene, num_dofs: int) -> float:
 @pytest.fixture(scope="session")
 def c3_run(tmp_path_factory):
     """(scene, dataset path) of the test-size C3 run with today's code (~4 s)."""
-    from deapull.fem_solver import problem, stepping
+    from deapull.fem_solver import stepping
     from deapull.fem_solver.run import solve_scene
     from deapull.fem_solver.stepping import Stepper
     sc = scenes.load("coin_pull", setup="C3", overrides=C3_TEST)
     # the solver path as the fixture's code had it: the coupling's first guess without the
-    # acceleration term, the placement on the scene's Newton at the fixture's penalty, a fresh
-    # Jacobian whenever an iteration is slower than solver.jacobian_reuse_ratio; the records then
-    # agree to round-off (test_stepping.py measures what the acceleration changes)
-    kept = problem.FRESH_RATE_MAX, stepping.PLACEMENT_PENALTY_N_M3
+    # acceleration term, the placement on the scene's Newton at the fixture's penalty; the records
+    # then agree to round-off (test_stepping.py measures what the acceleration changes)
+    kept = stepping.PLACEMENT_PENALTY_N_M3
     Stepper.PREDICT_ACCELERATION = Stepper.PLACEMENT_FULL_NEWTON = False
-    problem.FRESH_RATE_MAX, stepping.PLACEMENT_PENALTY_N_M3 = 0.0, math.inf
+    stepping.PLACEMENT_PENALTY_N_M3 = math.inf
     try:
         return sc, solve_scene(sc, tmp_path_factory.mktemp("c3"), progress=False)
     finally:
         Stepper.PREDICT_ACCELERATION = Stepper.PLACEMENT_FULL_NEWTON = True
-        problem.FRESH_RATE_MAX, stepping.PLACEMENT_PENALTY_N_M3 = kept
+        stepping.PLACEMENT_PENALTY_N_M3 = kept
