@@ -124,11 +124,10 @@ PLACEMENT_MIN_STEP = 1e-3  # smallest gravity-continuation step of the initial p
 #: a stiffer coin penalty than this is reached at placement by continuation from it (geometric in
 #: k_n, after gravity): the DEA first touches the coin part-way through the gravity continuation, and
 #: full Newton steps cross that touch-down at a soft penalty (C3 at the data fidelity: 28 Newton
-#: iterations, 22 s, from 2.24e7; 85 iterations, 67 s, from 2.24e9 — the same equilibrium, Fy within 1e-10)
+#: iterations, 22 s, from 2.24e7 against 85 iterations, 67 s, from 2.24e9, to the same equilibrium)
 PLACEMENT_PENALTY_N_M3 = 2.24e7
 #: Newton's cap in a continuation step of the placement: a cut step is cheaper than a long
-#: failing solve (on the 0.5 mm patch a 40-iteration failure took 95 s, a 12-iteration one 20 s;
-#: placement 660 s -> 120 s with the penalty continuation)
+#: failing solve (at the data fidelity a failing 12-iteration step costs 9 s, a converging step 2-3 s)
 PLACEMENT_MAX_IT = 12
 #: largest move of the DEA's free-end face in one (sub-)step, as a fraction of the DEA's thickness;
 #: a converged solve that moves it further jumped to another equilibrium branch and is cut back

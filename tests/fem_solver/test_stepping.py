@@ -438,4 +438,3 @@ def test_the_placement_assembles_a_jacobian_at_every_iteration_and_has_no_stall_
     else:
         assert p.jacobian_reuses > 0
     assert not p._placing                         # the block restores the scene's Newton
-
