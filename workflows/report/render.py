@@ -1,38 +1,37 @@
-"""The page rendered: HTML (inline CSS, no script) beside its images and table files, the same
-page as one portable file (images and tables inline as data URIs), and Markdown."""
+"""The page rendered by Jinja2 templates (``templates/``), its inline Markdown by markdown-it-py: HTML
+(inline CSS, no script) beside its images and table files, the same page as one portable file
+(images and tables inline as data URIs), and Markdown."""
 from __future__ import annotations
 
 import base64
 import csv
-import html
 import io
-import re
 from pathlib import Path
+
+from jinja2 import Environment, PackageLoader
+from markdown_it import MarkdownIt
+from markupsafe import Markup
 
 from deapull.workflows.report.document import Report
 
 
-_INLINE = re.compile(r"`([^`]+)`|\[([^\]]+)\]\(([^)\s]+)\)|\*\*([^*]+)\*\*")
+_MD = MarkdownIt("commonmark", {"html": False})
 
 
-def inline_html(text: str) -> str:
-    """Escape ``text`` and turn its `code`, [link](href) and **bold** into HTML."""
-    out, pos = [], 0
-    for m in _INLINE.finditer(text):
-        out.append(html.escape(text[pos:m.start()]))
-        if m.group(1) is not None:
-            out.append(f"<code>{html.escape(m.group(1))}</code>")
-        elif m.group(2) is not None:
-            out.append(f'<a href="{html.escape(m.group(3), quote=True)}">{inline_html(m.group(2))}</a>')
-        else:
-            out.append(f"<strong>{html.escape(m.group(4))}</strong>")
-        pos = m.end()
-    out.append(html.escape(text[pos:]))
-    return "".join(out)
+def inline_html(text) -> Markup:
+    """``text`` as inline Markdown (`code`, [link](href), **bold**) rendered to HTML, raw HTML escaped."""
+    return Markup(_MD.renderInline(str(text)))
 
 
-def _md_cell(text: str) -> str:
+def _md_cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+_ENV = {autoescape: Environment(loader=PackageLoader("deapull.workflows.report", "templates"),
+                                autoescape=autoescape, keep_trailing_newline=True)
+        for autoescape in (True, False)}
+_ENV[True].filters["md"] = inline_html
+_ENV[False].filters["cell"] = _md_cell
 
 
 CSS = """
@@ -79,105 +78,51 @@ def _data_uri(data: bytes, mime: str) -> str:
     return f"data:{mime};base64,{base64.b64encode(data).decode()}"
 
 
-def render_html(report: Report, title: str, lead: list[str], standalone: bool = False) -> str:
-    """The page as HTML. ``standalone``: one portable file, every image and table file inline as a
-    data URI (opens from anywhere, with no file beside it); otherwise they are files beside it
-    (``img/``, ``tables/``)."""
+def _view(report: Report, standalone: bool) -> list[dict]:
+    """The sections as the templates read them: every block a dict, every link resolved."""
     files = table_files(report)
-    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-             '<meta name="viewport" content="width=device-width, initial-scale=1">',
-             f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
-             f"<h1>{html.escape(title)}</h1>"]
-    parts += [f"<p>{inline_html(t)}</p>" for t in lead]
-    parts.append("<nav><ol>" + "".join(f'<li><a href="#{s.id}">{html.escape(s.title)}</a></li>'
-                                       for s in report.sections) + "</ol></nav>")
+    sections = []
     for s in report.sections:
-        parts.append(f'<section id="{s.id}"><h2>{html.escape(s.title)}</h2>')
+        blocks = []
         for block in s.blocks:
             kind = block[0]
             if kind == "p":
-                parts.append(f"<p>{inline_html(block[1])}</p>")
+                blocks.append({"kind": kind, "text": block[1]})
             elif kind == "ul":
-                parts.append("<ul>" + "".join(f"<li>{inline_html(i)}</li>" for i in block[1]) + "</ul>")
+                blocks.append({"kind": kind, "entries": block[1]})
             elif kind == "img":
                 src = block[1]
                 if standalone:
                     path = report.out / src
                     src = _data_uri(path.read_bytes(), MIME.get(path.suffix.lower(), "application/octet-stream"))
-                src, alt = html.escape(src, quote=True), html.escape(block[2], quote=True)
-                parts.append(f'<figure><img src="{src}" alt="{alt}">'
-                             f"<figcaption>{inline_html(block[2])}</figcaption></figure>")
+                blocks.append({"kind": kind, "src": src, "caption": block[2]})
             elif kind == "data":
                 _, name, text, label = block
                 href = _data_uri(text.encode(), "text/csv") if standalone else f"tables/{name}"
-                parts.append(f'<p class="data"><a href="{html.escape(href, quote=True)}" download="{name}">'
-                             f"{inline_html(label)}</a></p>")
+                blocks.append({"kind": kind, "name": name, "href": href, "label": label})
             elif kind == "missing":
                 _, what, step = block
                 make, command = step.hint(report.inputs)
-                parts.append(f'<div class="missing"><strong>Missing:</strong> {inline_html(what)}. Make it with '
-                             f"<code>{html.escape(make)}</code> (runs <code>{html.escape(command)}</code>)."
-                             "</div>")
+                blocks.append({"kind": kind, "what": what, "make": make, "command": command})
             elif kind == "table":
-                t = block[1]
-                cap = f"<caption>{inline_html(t.caption)}</caption>" if t.caption else ""
-                head = "".join(f"<th>{inline_html(str(h))}</th>" for h in t.headers)
-                rows = []
-                for i, row in enumerate(t.rows):
-                    rid = t.anchors[i] if t.anchors else None
-                    attr = f' id="{rid}"' if rid else ""
-                    rows.append(f"<tr{attr}>" + "".join(f"<td>{inline_html(str(c))}</td>" for c in row) + "</tr>")
-                cls = ' class="wrap"' if t.wrap else ""
-                parts.append(f"<table{cls}>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>")
-                name = files[id(t)]
+                t, name = block[1], files[id(block[1])]
+                rows = [{"id": t.anchors[i] if t.anchors else None, "cells": row} for i, row in enumerate(t.rows)]
                 href = _data_uri(table_csv(t).encode(), "text/csv") if standalone else f"tables/{name}"
-                parts.append(f'<p class="data"><a href="{html.escape(href, quote=True)}" download="{name}">'
-                             f"CSV of this table</a></p>")
-        if s.sources:
-            links = ", ".join(f'<a href="#{report.sources[Path(p).resolve()]["anchor"]}"><code>{html.escape(str(p))}'
-                              "</code></a>" for p in s.sources)
-            parts.append(f"<p><small>Sources: {links}</small></p>")
-        parts.append("</section>")
-    parts.append("</body></html>")
-    return "\n".join(parts) + "\n"
+                blocks.append({"kind": kind, "table": t, "rows": rows, "name": name, "href": href})
+        sources = [{"path": str(p), "anchor": report.sources[Path(p).resolve()]["anchor"]} for p in s.sources]
+        sections.append({"id": s.id, "title": s.title, "blocks": blocks, "sources": sources})
+    return sections
+
+
+def render_html(report: Report, title: str, lead: list[str], standalone: bool = False) -> str:
+    """The page as HTML (templates/page.html.j2). ``standalone``: one portable file, every image and
+    table file inline as a data URI (opens from anywhere, with no file beside it); otherwise they are
+    files beside it (``img/``, ``tables/``)."""
+    return _ENV[True].get_template("page.html.j2").render(
+        title=title, lead=lead, css=Markup(CSS), sections=_view(report, standalone))
 
 
 def render_markdown(report: Report, title: str, lead: list[str]) -> str:
-    lines = [f"# {title}", ""]
-    for t in lead:
-        lines += [t, ""]
-    lines += [f"{i + 1}. [{s.title}](#{s.id})" for i, s in enumerate(report.sections)] + [""]
-    for s in report.sections:
-        lines += [f'<a id="{s.id}"></a>', "", f"## {s.title}", ""]
-        for block in s.blocks:
-            kind = block[0]
-            if kind == "p":
-                lines += [block[1], ""]
-            elif kind == "ul":
-                lines += [f"* {i}" for i in block[1]] + [""]
-            elif kind == "img":
-                lines += [f"![{block[2]}]({block[1]})", "", f"*{block[2]}*", ""]
-            elif kind == "data":
-                lines += [f"[{block[3]}](tables/{block[1]})", ""]
-            elif kind == "missing":
-                _, what, step = block
-                make, command = step.hint(report.inputs)
-                lines += [f"> **Missing:** {what}. Make it with `{make}` (runs `{command}`).", ""]
-            elif kind == "table":
-                t = block[1]
-                if t.caption:
-                    lines += [f"**{t.caption}**", ""]
-                lines.append("| " + " | ".join(_md_cell(h) for h in t.headers) + " |")
-                lines.append("|" + "---|" * len(t.headers))
-                for i, row in enumerate(t.rows):
-                    rid = t.anchors[i] if t.anchors else None
-                    cells = [_md_cell(c) for c in row]
-                    if rid:
-                        cells[0] = f'<a id="{rid}"></a>{cells[0]}'
-                    lines.append("| " + " | ".join(cells) + " |")
-                lines.append("")
-        if s.sources:
-            lines += ["<small>Sources: " + ", ".join(f"[`{p}`](#{report.sources[Path(p).resolve()]['anchor']})"
-                                                    for p in s.sources) + "</small>", ""]
-    return "\n".join(lines)
-
+    """The page as Markdown (templates/page.md.j2), its images and tables as files beside it."""
+    return _ENV[False].get_template("page.md.j2").render(title=title, lead=lead,
+                                                          sections=_view(report, standalone=False))
