@@ -200,6 +200,8 @@ class DEAProblem:
         dw = ufl.TestFunction(self.W)
         v = ufl.split(dw)[0] if self.has_parts else dw
         self.contact, self._underside, self.penalty = None, None, None
+        # a Constant, so that a hard step can be solved by continuation in it (Stepper._attempt)
+        self.slip_reg = dolfinx.fem.Constant(self.mesh, float(sc.contact.slip_rate_regularisation_m_s))
         if self.obstacle is not None:
             lay = self.layout
             self.mu_t = dolfinx.fem.Constant(self.mesh, float(self.obstacle.mu_t))
@@ -209,7 +211,7 @@ class DEAProblem:
                 u, self.u_old, v, self.X, self.X_old, self.dt, self.ds_contact,
                 center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
                 edge_radius=self.obstacle.edge_radius_m, mu=self.mu_t, penalty_N_m3=self.penalty,
-                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s, edge_shape=self.obstacle.edge_shape)
+                slip_rate_reg_m_s=self.slip_reg, edge_shape=self.obstacle.edge_shape)
             energy += self.contact.energy
         self.table = None
         if sc.table is not None:
@@ -219,7 +221,7 @@ class DEAProblem:
             self.mu_g = dolfinx.fem.Constant(self.mesh, float(tb.mu_g))
             self.table = table.table_terms(u, self.u_old, v, self.dt, self.ds_table, height_m=tb.height_m,
                                            mu=self.mu_g, penalty_N_m3=tb.penalty_N_m3,
-                                           slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s)
+                                           slip_rate_reg_m_s=self.slip_reg)
             energy += self.table.energy
         residual = ufl.derivative(energy, self.w, dw)
         if self.contact is not None:
@@ -252,7 +254,7 @@ class DEAProblem:
                 u, self.u_old, self.X, self.dt, self.ds_contact, self.probe_velocity,
                 center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
                 edge_radius=self.obstacle.edge_radius_m, penalty_N_m3=self.penalty,
-                slip_rate_reg_m_s=sc.contact.slip_rate_regularisation_m_s, edge_shape=self.obstacle.edge_shape)
+                slip_rate_reg_m_s=self.slip_reg, edge_shape=self.obstacle.edge_shape)
             self.probe_forms = {k: compat.form(getattr(probe, k)) for k in ("pressure", "pressure_vx", "normal_x",
                                                                            "drag")}
         if self.table is not None:
@@ -359,6 +361,16 @@ class DEAProblem:
             yield
         finally:
             self.snes.setTolerances(max_it=self.scene.solver.newton_max_it)
+
+    @contextlib.contextmanager
+    def friction_regularisation(self, scale: float):
+        """The friction's slip-rate regularisation ε_v (of the coin and the table) times ``scale``
+        inside the block (the scene's outside)."""
+        self.slip_reg.value = scale * self.scene.contact.slip_rate_regularisation_m_s
+        try:
+            yield
+        finally:
+            self.slip_reg.value = self.scene.contact.slip_rate_regularisation_m_s
 
     @contextlib.contextmanager
     def placement_newton(self):

@@ -140,6 +140,9 @@ LINE_SEARCH_RETRY = "bt"
 #: the 400 V peak needs 84 iterations with the line search; with 40 it failed at every cut-back
 #: down to 1.4 µs and the case was lost)
 LONG_NEWTON_FACTOR = 3
+#: the friction regularisation's factors, in turn, of a (sub-)step solved by continuation after its
+#: line-search try failed (:meth:`Stepper._friction_continuation`); the last is the scene's own
+FRICTION_CONTINUATION = (100.0, 10.0, 1.0)
 
 
 def scene_protocol(scene) -> Protocol:
@@ -172,6 +175,9 @@ class Stepper:
     #: stall test): with the Jacobian kept at solver.jacobian_reuse_ratio = 0.6 the penalty continuation
     #: failed (tests/fem_solver/test_stepping.py checks a placement at that ratio)
     PLACEMENT_FULL_NEWTON = True
+    #: try a failed line-search solve once more by continuation in the friction's regularisation
+    #: (:meth:`_friction_continuation`) before the long try and the cut-backs
+    FRICTION_CONTINUATION = True
 
     def __init__(self, problem, mass_kg=None, progress: bool = True, on_step=None):
         self.p, self.scene = problem, problem.scene
@@ -193,8 +199,9 @@ class Stepper:
 
     # --- one coupled solve ------------------------------------------------------------
 
-    def _coupled_solve(self, V: float, dt: float):
-        """DEA ↔ coin iteration for one step; returns (ok, reason, newton its, coupling its, coin, forces)."""
+    def _coupled_solve(self, V: float, dt: float, X0: float | None = None):
+        """DEA ↔ coin iteration for one step from the coin position ``X0`` (default: the coin's
+        predictor); returns (ok, reason, newton its, coupling its, coin, forces)."""
         p, sc = self.p, self.scene
         if sc.coin is None:
             p.set_load(V, 0.0, dt)
@@ -205,7 +212,7 @@ class Stepper:
         # the coin's backward-Euler position with its velocity extrapolated by the last acceleration
         # (a sliding coin speeds up with the ramp: without it the first guess lags and the secant
         # needs one more DEA solve per step)
-        X = self.coin.x + dt * (self.coin.u + dt * self.coin_accel)
+        X = self.coin.x + dt * (self.coin.u + dt * self.coin_accel) if X0 is None else X0
         hist = []
         its = 0
         for k in range(1, sc.solver.coupling_max_it + 1):
@@ -462,6 +469,13 @@ class Stepper:
             self._set_line_search(LINE_SEARCH_RETRY)
             ok, reason, k_its, k_cits, coin, forces = attempt(first=False)
             its, cits = its + k_its, cits + k_cits
+        if not ok and self.FRICTION_CONTINUATION and (self.scene.has_obstacle or self.scene.table is not None):
+            self._info("t = %.6g s, dt = %.3g s: %s with the line search; by continuation in the friction's "
+                       "regularisation (x %s)", self.t, step, reason, ", ".join(f"{k:g}" for k in FRICTION_CONTINUATION))
+            ok_c, reason_c, k_its, k_cits, coin, forces = self._friction_continuation(V, step, ratio, tip_before)
+            its, cits = its + k_its, cits + k_cits
+            if ok_c:
+                ok, reason = ok_c, reason_c
         if not ok and reason == "DIVERGED_MAX_IT":
             long_it = LONG_NEWTON_FACTOR * self.scene.solver.newton_max_it
             self._info("t = %.6g s, dt = %.3g s: %s with the line search; once more with %d iterations",
@@ -471,6 +485,31 @@ class Stepper:
             its, cits = its + k_its, cits + k_cits
         if not ok and switched:
             self._set_line_search("basic")
+        return ok, reason, its, cits, coin, forces
+
+    def _friction_continuation(self, V: float, step: float, ratio: float, tip_before):
+        """The (sub-)step from the predictor solved at the friction regularisation ε_v times each of
+        :data:`FRICTION_CONTINUATION` in turn, each solve starting from the last; what
+        :meth:`_coupled_solve` returns at the scene's ε_v, the iterations summed.
+
+        Newton converges on the rate-regularised friction only within a slip of about ε_v Δt of the
+        answer. Where the tip starts to slip fast (the push's onset at 5 V per 1 ms step: C3 at the data
+        fidelity, t ≈ 0.047–0.056 s) the line search runs out of its iterations at every step size; from
+        the solution at 10 ε_v, where that basin is ten times wider, Newton converges at ε_v.
+        """
+        self.p.restore()
+        self.p.predict(ratio)
+        its = cits = 0
+        coin = None
+        for scale in FRICTION_CONTINUATION:
+            with self.p.friction_regularisation(scale):      # each from the last stage's DEA and coin
+                ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step, None if coin is None else coin.x)
+            its, cits = its + k_its, cits + k_cits
+            if not ok:
+                self._info("t = %.6g s, dt = %.3g s: %s at %g x the friction's regularisation after %d Newton "
+                           "iterations", self.t, step, reason, scale, k_its)
+                return ok, reason, its, cits, coin, forces
+        ok, reason = self._continuous(tip_before, reason)
         return ok, reason, its, cits, coin, forces
 
     def _set_line_search(self, kind: str) -> None:

@@ -302,10 +302,29 @@ def test_a_line_search_that_runs_out_of_iterations_gets_a_longer_try_not_a_cut_b
     shipped cap of 40 (84 iterations needed) and the case was lost."""
     stepper = _stepper(tmp_path, "load.protocol='triangle'", "load.ramp_time_s=0.25", "load.end_time_s=0.375",
                        "solver.newton_max_it=10")
+    stepper.FRICTION_CONTINUATION = False      # the longer try alone (the continuation has its own test)
     records = stepper.run()
     assert sum(r.cutbacks for r in records) == 0
     assert max(r.newton_iterations for r in records) > 10          # some step needed the longer try
     assert records[-1].t == pytest.approx(0.375)
+
+
+def test_a_fast_push_onset_converges_by_continuation_in_the_friction_regularisation(tmp_path, monkeypatch):
+    """The MPC's full push (0 -> 400 V in 80 ms at 1 ms steps) at the scene's ε_v = 1e-5 m/s: where the
+    tip starts to slip fast the line search fails, and the step is solved at 10, 3 and 1 × ε_v in turn,
+    each from the last; no cut-back. Broken once (no continuation): 3 cut-backs on this mesh (at the
+    data fidelity the push's onset steps each took a 120-iteration try instead and the push sweep
+    crawled)."""
+    stepper = _stepper(tmp_path, "load.ramp_time_s=0.08", "load.end_time_s=0.12", "time.dt_max_s=0.001",
+                       "contact.slip_rate_regularisation_m_s=1e-5")
+    calls = []
+    solve = stepper._friction_continuation
+    monkeypatch.setattr(stepper, "_friction_continuation", lambda *a: calls.append(a) or solve(*a))
+    records = stepper.run()
+    assert calls                                                   # some step needed it
+    assert sum(r.cutbacks for r in records) == 0
+    assert stepper.p.slip_reg.value == pytest.approx(1e-5)         # the scene's ε_v after it
+    assert records[-1].t == pytest.approx(0.12) and records[-1].x < -5e-4
 
 
 def test_a_step_that_jumps_branch_is_not_recorded(tmp_path, monkeypatch):
@@ -321,8 +340,8 @@ def test_a_step_that_jumps_branch_is_not_recorded(tmp_path, monkeypatch):
     solve = jumped._coupled_solve
     calls = []
 
-    def jump_once(V, dt):
-        out = solve(V, dt)
+    def jump_once(V, dt, *rest):
+        out = solve(V, dt, *rest)
         calls.append(jumped.line_search)
         if len(calls) == 1:
             jumped.p.w.x.array[:] += 5e-3                 # every displacement (and pressure) dof
