@@ -69,6 +69,8 @@ class SetupData:
         The FEM run's wall time (attribute ``wall_time_total_s``; NaN when absent).
     sha256 : str
         The file's SHA-256 (hex).
+    extra : bool
+        A run beside the setups' ramps (``deapull train --runs``: a push, an excitation protocol).
     scene_toml, setup : str
         The run's resolved scene and setup (its attributes; "" when absent).
     fidelity : str or None
@@ -98,6 +100,7 @@ class SetupData:
     sha256: str = ""
     scene_toml: str = ""
     setup: str = ""
+    extra: bool = False
 
     @functools.cached_property
     def _fidelity(self) -> tuple[str | None, str]:

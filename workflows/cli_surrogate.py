@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -115,7 +116,7 @@ def cmd_train(args) -> int:
         coins = {coin: coin_phi(args.model, data[coin]) for coin, _, _ in extra}
         phis = {path.stem: coins[coin] for coin, path, _ in extra if coins[coin] is not None}
         for coin, path, role in extra:
-            (train_sets if role == "train" else val_sets).append(load_setup(path))
+            (train_sets if role == "train" else val_sets).append(dataclasses.replace(load_setup(path), extra=True))
         log.info("extra runs: %s", ", ".join(f"{path.stem} ({role})" for _, path, role in extra))
     result = train(config, train_sets, val_sets, phis=phis)
     out = store.save(result.model, args.out, result.summary(), result.history)

@@ -156,12 +156,20 @@ class TipFriction:
     def training_hparams(cls, config, train_sets: list) -> dict:
         for d in train_sets:
             require_tip_contact(d)
-        eps = {d.slip_rate_reg_m_s for d in train_sets}
+        # the model's ε_v is the setups' ramps' (the extra runs': a push solved at a wider one, whose coin
+        # slides at hundreds of ε_v, is trained on at the ramps'; docs/surrogate.md)
+        ramps = [d for d in train_sets if not d.extra] or train_sets
+        eps = {d.slip_rate_reg_m_s for d in ramps}
         if len(eps) != 1:
             raise InputError(f"training setups were made with different friction regularisations {sorted(eps)} m/s; "
                              f"{cls.kind} needs one")
+        eps = eps.pop()
+        other = sorted({d.name for d in train_sets if d.extra and d.slip_rate_reg_m_s != eps})
+        if other:
+            log.warning("extra runs %s were made at another friction regularisation than the setups' %g m/s; "
+                        "%s trains on them at %g m/s", ", ".join(other), eps, cls.kind, eps)
         return {"hidden": config.hidden, "layers": config.layers, "gravity_m_s2": train_sets[0].gravity_m_s2,
-                "slip_rate_reg_m_s": eps.pop()}
+                "slip_rate_reg_m_s": eps}
 
     def material_pieces(self, v_lo: float, v_hi: float) -> dict:
         """m as the exact piecewise-affine function it is on [v_lo, v_hi] V (a fast path).

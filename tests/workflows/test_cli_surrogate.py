@@ -184,6 +184,36 @@ def test_deapull_entry_point_maps_bad_input_to_exit_2(sweep_dir, tmp_path, capsy
     assert "C9.nc" in capsys.readouterr().err
 
 
+def _with_slip_rate_reg(src, dst, eps):
+    import h5py                 # Debian's (the dolfinx one) or PyPI's: either reads the file's root attributes
+    dst.write_bytes(src.read_bytes())
+    with h5py.File(dst, "r+") as f:
+        f.attrs["contact_slip_rate_reg_m_s"] = np.array([eps])
+
+
+def test_f_coulomb_takes_the_ramps_friction_regularisation_and_trains_on_extra_runs_at_another(sweep_dir, tmp_path,
+                                                                                               caplog):
+    """The push set is solved at a wider ε_v than the ramps: f-coulomb keeps the ramps' ε_v and says so for
+    the extra run; two ramps of different ε_v are still refused."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    _with_slip_rate_reg(sweep_dir / "C1.nc", runs / "C1_push.nc", 1e-3)
+    out = tmp_path / "m"
+    with caplog.at_level("WARNING"):
+        assert _run("train", "--data", str(sweep_dir), "--train", "C1", "--val", "C2", "--model", "f-coulomb",
+                    "--out", str(out), "--epochs", "1", "--restarts", "1", "--runs", str(runs)) == 0
+    assert json.loads((out / "model.json").read_text())["hyper_parameters"]["slip_rate_reg_m_s"] == 1e-4
+    assert "extra runs C1_push were made at another friction regularisation" in caplog.text
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for name in ("C1", "C3"):
+        (mixed / f"{name}.nc").write_bytes((sweep_dir / f"{name}.nc").read_bytes())
+    _with_slip_rate_reg(sweep_dir / "C2.nc", mixed / "C2.nc", 1e-3)
+    with pytest.raises(InputError, match=r"different friction regularisations \[0.0001, 0.001\] m/s"):
+        _run("train", "--data", str(mixed), "--train", "C1,C2", "--val", "C3", "--model", "f-coulomb",
+             "--out", str(tmp_path / "refused"), "--epochs", "1", "--restarts", "1")
+
+
 def test_train_takes_further_runs_of_its_coins_with_the_coins_phi(sweep_dir, tmp_path):
     """``--runs DIR``: the runs ``<setup>_<name>.nc`` of the training setups join the training, the
     validation setup's the validation, each with its setup's φ (here a copy of C3's ramp filed as a
