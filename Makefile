@@ -63,9 +63,9 @@ ifeq ($(PRESET),fem)
 	$(DEAPULL) control --preset fem --data $(DATA) --out $(OUT)/control_fem
 	$(DEAPULL) control --preset fem $(FEM_MULTI) --data $(DATA) --out $(OUT)/control_fem/multi
 else
-	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
-		--val C$$((3 - s)) --model f-coulomb --epochs 300 --out $(MODELS)/fs$$s || exit 1; done
 	$(FA_PUSH)
+	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
+		--val C$$((3 - s)) --model f-coulomb --epochs 300 --runs $(DATA)/push --out $(MODELS)/fs$$s || exit 1; done
 	$(DEAPULL) control --preset $(PRESET) --data $(DATA) --out $(OUT)/control
 	cp $(OUT)/control/summary.json bench/reference/control_surrogate.json
 endif
