@@ -75,7 +75,7 @@ def load_study(name_or_path: str | Path) -> dict:
             raise InputError(f"{path}: ladders.{name}.ratio = {ladder.get('ratio')!r}: expected a number > 1")
     checks = study.get("checks", {})
     named = [*checks.get("dt", []), checks.get("default", ""), checks.get("corner", ""),
-             *(n for pair in checks.get("pairs", {}).values() for n in pair)]
+             *(n for pair in checks.get("pairs", {}).values() for n in pair), *checks.get("candidates", [])]
     unknown = [n for n in named if n and n not in cases]
     if unknown:
         raise InputError(f"{path}: [checks] names {unknown[0]!r}, not a case; cases: {', '.join(cases)}")
@@ -231,6 +231,12 @@ def summarise(study: dict, metrics: dict) -> dict:
         out["default_case"] = default
         out["default_error_fallback_percent"] = 100.0 * (metrics[default]["x_at_t_mm"]
                                                          / out["reference_fallback_x_at_t_mm"] - 1.0)
+    # meshes that could replace the data fidelity: each one's error against the reference, at its cost
+    if np.isfinite(out["reference_x_at_t_mm"]):
+        out["candidates"] = {n: {"error_percent": 100.0 * (metrics[n]["x_at_t_mm"] / out["reference_x_at_t_mm"] - 1.0),
+                                 "dofs": metrics[n].get("dofs"), "wall_s": metrics[n].get("wall_s"),
+                                 "overrides": study["cases"][n]}
+                             for n in checks.get("candidates", []) if n in metrics}
     return out
 
 
@@ -294,6 +300,10 @@ def report_lines(result: dict) -> list[str]:
                      f"against it (goal within 2 %)")
     for name, pair in result["pairs"].items():
         lines.append(f"  {name} ({pair['cases'][0]} -> {pair['cases'][1]}): {pair['change_percent']:+.3f} %")
+    for name, c in result.get("candidates", {}).items():
+        cost = f", {c['dofs']:,} dofs, {c['wall_s']:.0f} s" if c.get("dofs") and c.get("wall_s") else ""
+        lines.append(f"  candidate {name} ({' '.join(c['overrides'])}{cost}): {c['error_percent']:+.3f} % against "
+                     f"the reference")
     return lines
 
 

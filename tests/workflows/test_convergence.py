@@ -110,3 +110,22 @@ def test_two_ladders_through_different_cases_meet_at_their_corner():
     assert out["default_error_percent"] == pytest.approx(100 * (x(0.5, 1.0) - 1.0), rel=1e-9)
     del study["checks"]["corner"]
     assert math.isnan(convergence.summarise(study, metrics)["reference_x_at_t_mm"])
+
+
+def test_a_candidate_mesh_is_measured_against_the_reference():
+    """``[checks] candidates``: a case that could replace the data fidelity gets its error against the
+    additive reference (here x(1/4, 1/2) of x = 1 + 0.1 h_a^2 + 0.05 h_b, exact reference 1), printed with
+    its cost."""
+    def x(ha, hb):
+        return 1.0 + 0.1 * ha ** 2 + 0.05 * hb
+    grid = {"a2": (0.5, 1.0), "a4": (0.25, 1.0), "a8": (0.125, 1.0), "b1": (1.0, 1.0), "b2": (1.0, 0.5),
+            "b4": (1.0, 0.25), "cand": (0.25, 0.5)}
+    metrics = {n: {"x_at_t_mm": x(*h), "x_end_mm": x(*h), "peak_overlap_um": 1.0, "min_points": 30,
+                   "t": [0.0, 1.0], "x": [0.0, 1e-3 * x(*h)], "dofs": 1000, "wall_s": 10.0} for n, h in grid.items()}
+    study = {"study": {"scene": "coin_pull", "time_s": 0.95}, "cases": {n: [] for n in grid},
+             "ladders": {"tip": {"cases": ["a2", "a4", "a8"], "ratio": 2},
+                         "layers": {"cases": ["b1", "b2", "b4"], "ratio": 2}},
+             "checks": {"corner": "b1", "default": "a2", "candidates": ["cand"]}, "path": "x.toml"}
+    out = convergence.summarise(study, metrics)
+    assert out["candidates"]["cand"]["error_percent"] == pytest.approx(100 * (x(0.25, 0.5) - 1.0), rel=1e-9)
+    assert any(line.startswith("  candidate cand (") and "+3.125 %" in line for line in convergence.report_lines(out))
