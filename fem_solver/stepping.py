@@ -494,8 +494,8 @@ class Stepper:
 
         Newton converges on the rate-regularised friction only within a slip of about ε_v Δt of the
         answer. Where the tip starts to slip fast (the push's onset at 5 V per 1 ms step: C3 at the data
-        fidelity, t ≈ 0.047–0.056 s) the line search runs out of its iterations at every step size; from
-        the solution at 10 ε_v, where that basin is ten times wider, Newton converges at ε_v.
+        fidelity, t ≈ 0.046–0.049 s) the line search runs out of its iterations; from the solution at a
+        larger ε_v, whose basin is as much wider, Newton converges at the next (docs/physics.md).
         """
         self.p.restore()
         self.p.predict(ratio)

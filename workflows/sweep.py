@@ -46,8 +46,7 @@ PROTOCOL_SETS = {
     # ~30 mm/s at the top, twelve times the ramp's speed, and coasts after it (docs/control.md); the
     # coin's pull presses the DEA into the table harder than on the ramps: the table twice as stiff. The
     # friction's regularisation is 1e-4 m/s, 1/300 of the push's coin speed (at the scene's 1e-5 the
-    # tip's fast onset of slip costs 30-40 s per 1 ms step, and C3's push 25 min against 8; the travel
-    # it changes is in docs/datasets.md)
+    # tip's fast onset of slip costs 30-40 s per 1 ms step; what it changes: docs/datasets.md)
     "push": {
         "fast": ("load.ramp_time_s=0.08", "load.end_time_s=0.28", "time.dt_max_s=0.001", "table.penalty_N_m3=2e12",
                  "contact.slip_rate_regularisation_m_s=1e-4"),

@@ -311,7 +311,7 @@ def test_a_line_search_that_runs_out_of_iterations_gets_a_longer_try_not_a_cut_b
 
 def test_a_fast_push_onset_converges_by_continuation_in_the_friction_regularisation(tmp_path, monkeypatch):
     """The MPC's full push (0 -> 400 V in 80 ms at 1 ms steps) at the scene's ε_v = 1e-5 m/s: where the
-    tip starts to slip fast the line search fails, and the step is solved at 10, 3 and 1 × ε_v in turn,
+    tip starts to slip fast the line search fails, and the step is solved at 100, 10 and 1 × ε_v in turn,
     each from the last; no cut-back. Broken once (no continuation): 3 cut-backs on this mesh (at the
     data fidelity the push's onset steps each took a 120-iteration try instead and the push sweep
     crawled)."""

@@ -46,6 +46,10 @@ def test_a_study_naming_a_case_it_lacks_is_refused_before_any_run(tmp_path):
                    '[ladders.x]\ncases = ["a", "b", "c"]\nratio = 2\n')
     with pytest.raises(InputError, match=r"ladders\.x\.cases"):
         convergence.load_study(bad)
+    bad.write_text('[study]\nscene = "coin_pull"\nsetup = "C3"\ntime_s = 0.95\n[cases]\na = []\nb = []\nc = []\n'
+                   '[ladders.x]\ncases = ["a", "b", "c"]\nratio = 2\n[checks]\ncandidates = ["z"]\n')
+    with pytest.raises(InputError, match=r"\[checks\] names 'z', not a case"):
+        convergence.load_study(bad)
     with pytest.raises(InputError, match="unknown study"):
         convergence.load_study("no_such_study")
     shipped = convergence.load_study("contact_reference")
