@@ -472,7 +472,8 @@ class Stepper:
         if not ok and self.FRICTION_CONTINUATION and (self.scene.has_obstacle or self.scene.table is not None):
             self._info("t = %.6g s, dt = %.3g s: %s with the line search; by continuation in the friction's "
                        "regularisation (x %s)", self.t, step, reason, ", ".join(f"{k:g}" for k in FRICTION_CONTINUATION))
-            ok_c, reason_c, k_its, k_cits, coin, forces = self._friction_continuation(V, step, ratio, tip_before)
+            with self.p.fresh_jacobian_when_damped():
+                ok_c, reason_c, k_its, k_cits, coin, forces = self._friction_continuation(V, step, ratio, tip_before)
             its, cits = its + k_its, cits + k_cits
             if ok_c:
                 ok, reason = ok_c, reason_c
@@ -480,7 +481,7 @@ class Stepper:
             long_it = LONG_NEWTON_FACTOR * self.scene.solver.newton_max_it
             self._info("t = %.6g s, dt = %.3g s: %s with the line search; once more with %d iterations",
                        self.t, step, reason, long_it)
-            with self.p.newton_max_it(long_it):
+            with self.p.newton_max_it(long_it), self.p.fresh_jacobian_when_damped():
                 ok, reason, k_its, k_cits, coin, forces = attempt(first=False)
             its, cits = its + k_its, cits + k_cits
         if not ok and switched:
