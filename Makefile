@@ -86,6 +86,7 @@ BENCH ?= fem
 bench: setup ## speed, measured beside a baseline in the same run: BENCH=fem (C3 vs ABAQUS 130 s, the sweep), surrogate (1 s rollouts), control (MPC step vs mpc.pytorch and the paper's 1.2 s), control-fem (FEM_PLANTS), inference (LM update speed, and the calibration of what the inference tells), blas
 ifeq ($(BENCH),fem)
 	$(PY) bench/bench_fem.py --out $(OUT)/bench_fem --np $(NP)
+	cp $(OUT)/bench_fem/bench_fem.json bench/reference/fem_speed.json
 else ifeq ($(BENCH),surrogate)
 	$(PY) bench/bench_surrogate.py --data $(DATA)
 else ifeq ($(BENCH),control)

@@ -210,6 +210,9 @@ class Solver:
     jacobian_reuse_ratio: float = _num(0.3, lo=0.0, hi=1.0, lo_open=False, hi_open=True,
                                        doc="keep the factorised Jacobian while each Newton iteration cuts the "
                                            "residual by this factor; 0 = full Newton")
+    predictor: str = _choice("quadratic", ("quadratic", "linear"),
+                             "first guess of a step: the state extrapolated through the last three accepted "
+                             "states (linear through two where the voltage turned or held)")
     line_search_reuse_ratio: float = _num(0.95, lo=0.0, hi=1.0, lo_open=False, hi_open=True,
                                           doc="the same, after a step that the line search damped (a friction's "
                                               "onset or reversal): those iterations cut the residual slowly "
@@ -717,7 +720,8 @@ def from_resolved_toml(text: str) -> Scene:
 DISCRETISATION = ("mesh", "solver", "contact", "time")
 #: keys that choose the path to the solution, not the solution (to the Newton tolerance): a dataset
 #: made with other values is the same fidelity
-SOLVER_PATH = (("solver", "jacobian_reuse_ratio"), ("solver", "line_search_reuse_ratio"), ("solver", "linear_solver"))
+SOLVER_PATH = (("solver", "jacobian_reuse_ratio"), ("solver", "line_search_reuse_ratio"), ("solver", "predictor"),
+               ("solver", "linear_solver"))
 
 
 def _fidelity_dict(scene_dict: dict) -> dict:

@@ -41,6 +41,10 @@ STALL_ITERATIONS = 8
 #: dynamic scheduling outgrows (INFOG(1) = -9) fits the load dependence, and this relaxation is the
 #: remedy for it (memory only, not accuracy). A failed linear solve now names MUMPS's INFOG(1, 2).
 MUMPS_WORKSPACE_RELAXATION = 100
+#: after a damped line-search step the factorised Jacobian is kept (solver.line_search_reuse_ratio) for at
+#: most this many iterations in a row: a Jacobian kept longer converges in so many more iterations that
+#: the line search runs out of them (tests/fem_solver/test_stepping.py: cut-backs at the triangle's peak)
+DAMPED_REUSE_ITERATIONS = 5
 # ``contact.reach_m`` (a scene key, 0 = off): the obstacle's contact integral runs over the
 # underside facets that overlap, along x in the reference configuration, the obstacle's footprint
 # at rest widened by that much on both sides; the rest of the underside cannot reach it. On
@@ -111,6 +115,7 @@ class DEAProblem:
         self.w = dolfinx.fem.Function(self.W, name="state")
         self.w_old = dolfinx.fem.Function(self.W)
         self.w_older = dolfinx.fem.Function(self.W)
+        self.w_oldest = self.w_older.x.array.copy()        # w_{n-2}, for the quadratic predictor only
         parts = ufl.split(self.w) if self.has_parts else (self.w,)
         old = ufl.split(self.w_old) if self.has_parts else (self.w_old,)
         self.parts = parts
@@ -314,7 +319,7 @@ class DEAProblem:
         self.snes = snes
         self._jacobian_ready, self._last_fnorm, self._placing, self._line_search = False, 0.0, False, "basic"
         self._f_evals = self._f_evals_at_J = 0     # residuals assembled, and at the last Jacobian call
-        self._keep_when_damped = True
+        self._kept_damped = 0                     # damped iterations in a row on the kept Jacobian
         self._first_fnorm, self._best_fnorm, self._best_it, self.stalled = 0.0, 0.0, 0, False
         self.jacobian_assemblies = self.jacobian_reuses = 0
 
@@ -376,18 +381,6 @@ class DEAProblem:
             self.slip_reg.value = self.scene.contact.slip_rate_regularisation_m_s
 
     @contextlib.contextmanager
-    def fresh_jacobian_when_damped(self):
-        """Inside the block a damped line-search step is followed by the full-step solves' ratio
-        (``solver.jacobian_reuse_ratio``), as for the retries of a step whose first line-search
-        try failed: a kept Jacobian converges in more iterations, and a retry is the last resort
-        before a cut-back (:meth:`_eval_J`)."""
-        self._keep_when_damped = False
-        try:
-            yield
-        finally:
-            self._keep_when_damped = True
-
-    @contextlib.contextmanager
     def placement_newton(self):
         """Newton as the placement's continuation needs it inside the block: a fresh Jacobian at every
         iteration (``solver.jacobian_reuse_ratio`` outside) and no stall test (the continuation caps
@@ -429,18 +422,21 @@ class DEAProblem:
         ``solver.line_search_reuse_ratio``: those iterations cut the residual by ≈ 0.9 each with a
         fresh Jacobian or a kept one, since the direction, not the Jacobian, limits them; and at the
         data fidelity a fresh one costs as much as ≈ 37 kept iterations (0.28 s assembly + 0.65 s LU
-        against 25 ms). Undamped steps under the line search keep ``solver.jacobian_reuse_ratio``: a
-        kept Jacobian that converges slowly there is stale (C3 on one core with 0.95 on every line-search
-        iteration: 722 s against 536 s).
+        against 25 ms). At most :data:`DAMPED_REUSE_ITERATIONS` damped iterations in a row keep it.
+        Undamped steps under the line search keep ``solver.jacobian_reuse_ratio``: a kept Jacobian that
+        converges slowly there is stale (C3 on one core with 0.95 on every line-search iteration: 722 s
+        against 536 s).
         """
         it, fnorm = snes.getIterationNumber(), snes.getFunctionNorm()
         sv = self.scene.solver
         # a full step costs the line search one residual, a damped one two or more
-        damped = (self._line_search != "basic" and self._keep_when_damped and it > 0
-                  and self._f_evals - self._f_evals_at_J > 1)
+        damped = self._line_search != "basic" and it > 0 and self._f_evals - self._f_evals_at_J > 1
         self._f_evals_at_J = self._f_evals
         r = 0.0 if self._placing else (sv.line_search_reuse_ratio if damped else sv.jacobian_reuse_ratio)
         reuse = r > 0 and self._jacobian_ready and (it == 0 or fnorm <= r * self._last_fnorm)
+        if damped:      # kept for at most DAMPED_REUSE_ITERATIONS in a row
+            reuse = reuse and self._kept_damped < DAMPED_REUSE_ITERATIONS
+            self._kept_damped = self._kept_damped + 1 if reuse else 0
         self._last_fnorm = fnorm
         if reuse:
             self.jacobian_reuses += 1
@@ -499,11 +495,16 @@ class DEAProblem:
 
     # --- state ---------------------------------------------------------------------
 
-    def predict(self, ratio: float) -> None:
-        """Linear extrapolation from the two last accepted states: w = w_n + ratio (w_n − w_{n−1})."""
-        self.w.x.array[:] = self.w_old.x.array + ratio * (self.w_old.x.array - self.w_older.x.array)
+    def predict(self, weights) -> None:
+        """Extrapolation from the last accepted states: w = a w_n + b w_{n−1} [+ c w_{n−2}] for
+        ``weights`` = (a, b[, c]) (the stepper's Lagrange weights; linear: (1 + r, −r))."""
+        a, b, *c = weights
+        self.w.x.array[:] = a * self.w_old.x.array + b * self.w_older.x.array
+        if c and c[0] != 0.0:
+            self.w.x.array[:] += c[0] * self.w_oldest
 
     def accept(self) -> None:
+        self.w_oldest[:] = self.w_older.x.array
         self.w_older.x.array[:] = self.w_old.x.array
         self.w_old.x.array[:] = self.w.x.array
         self.X_old.value = float(self.X.value)

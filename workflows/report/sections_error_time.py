@@ -84,7 +84,7 @@ def bench_points(path: Path) -> list[dict]:
     res = json.loads(path.read_text())
     out = []
     for label, r in res.items():
-        if label in ("sweep", "reference") or not isinstance(r, dict):
+        if label in ("sweep", "reference", "goals") or not isinstance(r, dict):
             continue
         if r.get("error_percent") is not None:
             out.append(_point("FEM benchmark", label, TRAVEL, r.get("wall_s"), abs(r["error_percent"]), "ok", "", path))

@@ -337,7 +337,7 @@ def section_fem_accuracy(rep: Report) -> Section:
     res = json.loads(path.read_text())
     rows = []
     for label, r in res.items():
-        if label in ("sweep", "reference"):
+        if label in ("sweep", "reference", "goals"):
             continue
         rows.append([label, fmt(r["wall_s"], ".1f"), format(ABAQUS_S / r["wall_s"], ".2f") + "×", str(r["points"]),
                      str(r["dofs"]), str(r["newton_its"]), fmt(r["x_at_t_mm"], ".4f"),
