@@ -545,8 +545,9 @@ class Stepper:
         intervals (``solver.predictor = "quadratic"``), else linear by :meth:`_predictor_ratio`.
 
         Quadratic where the coin slides: the DEA's state curves with the ramp, and the linear guess
-        leaves a first residual ≈ 1e-4, ten times the stuck coin's. C3 at the data fidelity on one
-        core: 406 -> 328 s, Newton iterations 5,781 -> 4,447, the travel equal to 1e-7.
+        leaves a first residual ≈ 1e-4, ten times the stuck coin's. C3 at the data fidelity: Newton
+        iterations 5,624 -> 4,447 together with ``solver.line_search_reuse_ratio`` (which alone moved
+        them 5,625 -> 5,781), the travel equal to 1e-7 (bench/reference/fem_speed.json).
         """
         if (self.scene.solver.predictor == "quadratic" and self.prev_dt is not None and self.substep_dt is not None
                 and dV * self.substep_dV > 0.0 and self.substep_dV * self.prev_dV > 0.0):
