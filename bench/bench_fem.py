@@ -62,18 +62,19 @@ def main(argv=None) -> int:
     out, ref_path = Path(args.out), Path(args.reference)
     ref = json.loads(ref_path.read_text()) if ref_path.is_file() else {}
     t_ref, x_ref = ref.get("time_s", 0.95), ref.get("reference_x_at_t_mm")
-    res, wall = {}, {}
+    runs, wall = {}, {}
     for label, folder, fidelity, overrides in CASES:
         r = solve(out / folder, fidelity, overrides)
         wall[folder] = r.number("wall_time_total_s")
         c = r.columns
         x_t = 1e3 * float(np.interp(t_ref, c["t"], c["x"]))
         touching = c["n_contact"][c["n_contact"] > 0]
-        res[label] = {"wall_s": r.number("wall_time_total_s"), "points": len(c["t"]), "dofs": int(r.attrs["mesh_dofs"]),
+        runs[label] = {"wall_s": r.number("wall_time_total_s"), "points": len(c["t"]), "dofs": int(r.attrs["mesh_dofs"]),
                       "newton_its": int(np.sum(c["newton_iterations"])), "x_at_t_mm": x_t,
                       "travel_mm": 1e3 * float(np.max(np.abs(c["x"]))),
                       "error_percent": 100 * (x_t / x_ref - 1) if x_ref else None,
                       "min_contact_points": int(touching.min()) if touching.size else 0}
+    res = {"runs": runs}
     if not args.skip_sweep:
         sweep_dir = out / "sweep"
         if sweep_dir.exists():            # a timed sweep from scratch: no dataset, no stored result
@@ -91,7 +92,7 @@ def main(argv=None) -> int:
           + (f"{x_ref:.4f} mm ± {ref['bound_percent']:.2f} %" if x_ref else "none (make fem-study)"))
     print(f"{'':30s} {'wall s':>8s} {'vs ABAQUS':>10s} {'points':>7s} {'dofs':>6s} {'Newton':>7s} "
           f"{'x(t) mm':>9s} {'error':>8s} {'contact pts':>11s}")
-    for label, r in ((k, v) for k, v in res.items() if k not in ("sweep", "reference", "goals")):
+    for label, r in runs.items():
         err = f"{r['error_percent']:+7.2f}%" if r["error_percent"] is not None else f"{'–':>8s}"
         print(f"{label:30s} {r['wall_s']:8.1f} {ABAQUS_S / r['wall_s']:9.2f}x {r['points']:7d} {r['dofs']:6d} "
               f"{r['newton_its']:7d} {r['x_at_t_mm']:9.4f} {err} {r['min_contact_points']:11d}")

@@ -246,7 +246,7 @@ def fem_speed(result: dict) -> str:
     run, the preview, the sweep when timed, ABAQUS and the goals."""
     ref, goals = result.get("reference", {}), result["goals"]
     t = ref.get("time_s", 0.95)
-    runs = {k: v for k, v in result.items() if k not in ("sweep", "reference", "goals")}
+    runs = result["runs"]
     base = next((v for k, v in runs.items() if k.startswith("baseline")), None)
     rows = [f"| run (coin_pull C3, one core) | wall s | vs baseline | vs ABAQUS | points | dofs | Newton its | "
             f"x({t:g} s) mm | vs reference |", "|---|---|---|---|---|---|---|---|---|"]
@@ -265,8 +265,8 @@ def fem_speed(result: dict) -> str:
 
 def fem_speed_headline(result: dict) -> str:
     """The README's row of the FEM's speed (``make bench BENCH=fem``)."""
-    data = result.get("data fidelity (scene file)", {})
-    base = next((v for k, v in result.items() if k.startswith("baseline")), {})
+    data = result["runs"].get("data fidelity (scene file)", {})
+    base = next((v for k, v in result["runs"].items() if k.startswith("baseline")), {})
     return "\n".join(["| what | ours | paper |", "|---|---|---|",
                       f"| FEM of one 0→400 V ramp (coin_pull C3, data fidelity), one core | {_f(data.get('wall_s'), '.0f')} s "
                       f"at {data.get('dofs', '–')} dofs (the solver path before its last speed-up: "

@@ -88,8 +88,8 @@ def test_a_results_block_is_rewritten_from_its_file(tmp_path):
     (tmp_path / "bench" / "reference" / "contact_reference.json").write_text(json.dumps(result))
     text = docs_tables.render(page.read_text(), tmp_path)
     assert "| coin travel, C3 at 400 V | 1.200 mm |" in text and "old" not in text and text.endswith("\nb\n")
-    speed = {"data fidelity (scene file)": {"wall_s": 60.0, "dofs": 100},
-             "baseline: linear predictor": {"wall_s": 120.0, "dofs": 100}}
+    speed = {"runs": {"data fidelity (scene file)": {"wall_s": 60.0, "dofs": 100},
+                      "baseline: linear predictor": {"wall_s": 120.0, "dofs": 100}}}
     (tmp_path / "bench" / "reference" / "fem_speed.json").write_text(json.dumps(speed))
     text = docs_tables.render("<!-- results:fem_speed_headline -->\nold\n<!-- /results:fem_speed_headline -->", tmp_path)
     assert "| 60 s at 100 dofs (the solver path before its last speed-up: 120 s, same run) | 130 s (ABAQUS) |" in text

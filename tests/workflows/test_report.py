@@ -293,9 +293,9 @@ def _fake_studies(inputs: report.Inputs) -> None:
     _png(inputs.control_fem / "position_fem_C1_noise0.0001.png")
     inputs.bench_fem.mkdir(parents=True)
     (inputs.bench_fem / "bench_fem.json").write_text(json.dumps(
-        {"data fidelity (scene file)": {"wall_s": 10.0, "points": 722, "dofs": 1587, "newton_its": 4500,
-                                        "x_at_t_mm": -1.116, "travel_mm": 1.326, "error_percent": 1.6,
-                                        "min_contact_points": 25},
+        {"runs": {"data fidelity (scene file)": {"wall_s": 10.0, "points": 722, "dofs": 1587, "newton_its": 4500,
+                                                 "x_at_t_mm": -1.116, "travel_mm": 1.326, "error_percent": 1.6,
+                                                 "min_contact_points": 25}},
          "sweep": {"wall_s": 70.0, "np": 2},
          "reference": {"file": "contact_reference.json", "x_at_t_mm": -1.1, "time_s": 0.95, "bound_percent": 0.5}}))
     inputs.protocols.mkdir(parents=True)

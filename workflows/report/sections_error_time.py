@@ -83,9 +83,7 @@ def bench_points(path: Path) -> list[dict]:
     """``bench_fem.json``: each timed run's x(0.95 s) against the committed contact reference."""
     res = json.loads(path.read_text())
     out = []
-    for label, r in res.items():
-        if label in ("sweep", "reference", "goals") or not isinstance(r, dict):
-            continue
+    for label, r in res["runs"].items():
         if r.get("error_percent") is not None:
             out.append(_point("FEM benchmark", label, TRAVEL, r.get("wall_s"), abs(r["error_percent"]), "ok", "", path))
     return out
