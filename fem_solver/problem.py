@@ -317,7 +317,7 @@ class DEAProblem:
             # read when the factor matrix is made (the first solve), so it stays in the database
             opts[prefix + "mat_mumps_icntl_14"] = MUMPS_WORKSPACE_RELAXATION
         self.snes = snes
-        self._jacobian_ready, self._last_fnorm, self._placing, self._line_search = False, 0.0, False, "basic"
+        self._jacobian_ready, self._last_fnorm, self._placing, self.line_search = False, 0.0, False, "basic"
         self._f_evals = self._f_evals_at_J = 0     # residuals assembled, and at the last Jacobian call
         self._kept_damped = 0                     # damped iterations in a row on the kept Jacobian
         self._first_fnorm, self._best_fnorm, self._best_it, self.stalled = 0.0, 0.0, 0, False
@@ -352,14 +352,14 @@ class DEAProblem:
 
     def set_line_search(self, kind: str) -> None:
         """The line search of the Newton solves: ``basic`` (full steps, the default) or a PETSc
-        type such as ``bt`` (backtracking). Set through this SNES's own options prefix, which
-        is cleared again (this petsc4py has no SNESLineSearch object)."""
+        type such as ``bt`` (backtracking), named by ``line_search``. Set through this SNES's own
+        options prefix, which is cleared again (this petsc4py has no SNESLineSearch object)."""
         key = self.snes.getOptionsPrefix() + "snes_linesearch_type"
         opts = PETSc.Options()
         opts[key] = kind
         self.snes.setFromOptions()
         del opts[key]
-        self._line_search = kind
+        self.line_search = kind
 
     @contextlib.contextmanager
     def newton_max_it(self, max_it: int):
@@ -430,7 +430,7 @@ class DEAProblem:
         it, fnorm = snes.getIterationNumber(), snes.getFunctionNorm()
         sv = self.scene.solver
         # a full step costs the line search one residual, a damped one two or more
-        damped = self._line_search != "basic" and it > 0 and self._f_evals - self._f_evals_at_J > 1
+        damped = self.line_search != "basic" and it > 0 and self._f_evals - self._f_evals_at_J > 1
         self._f_evals_at_J = self._f_evals
         r = 0.0 if self._placing else (sv.line_search_reuse_ratio if damped else sv.jacobian_reuse_ratio)
         reuse = r > 0 and self._jacobian_ready and (it == 0 or fnorm <= r * self._last_fnorm)

@@ -193,7 +193,6 @@ class Stepper:
         self.substep_dV = 0.0                  # voltage change over that interval (predictor direction)
         self.prev_dt: float | None = None      # the interval before it (None: w_{n-2} not on this path)
         self.prev_dV = 0.0
-        self.line_search = "basic"             # of the Newton solve under way (LINE_SEARCH_RETRY on a retry)
         self.started = False
         self.steps_below_min_points = 0        # records whose contact had fewer points than the scene asks
         self.tip_move_max_m = MAX_TIP_MOVE_PER_STEP * (problem.scene.dea.active_thickness_m
@@ -469,7 +468,7 @@ class Stepper:
         if switched:
             self._info("t = %.6g s, dt = %.3g s: %s with full Newton steps; retrying with a line search",
                        self.t, step, reason)
-            self._set_line_search(LINE_SEARCH_RETRY)
+            self.p.set_line_search(LINE_SEARCH_RETRY)
             ok, reason, k_its, k_cits, coin, forces = attempt(first=False)
             its, cits = its + k_its, cits + k_cits
         if not ok and self.FRICTION_CONTINUATION and (self.scene.has_obstacle or self.scene.table is not None):
@@ -487,7 +486,7 @@ class Stepper:
                 ok, reason, k_its, k_cits, coin, forces = attempt(first=False)
             its, cits = its + k_its, cits + k_cits
         if not ok and switched:
-            self._set_line_search("basic")
+            self.p.set_line_search("basic")
         return ok, reason, its, cits, coin, forces
 
     def _friction_continuation(self, V: float, step: float, weights: tuple, tip_before):
@@ -515,10 +514,10 @@ class Stepper:
         ok, reason = self._continuous(tip_before, reason)
         return ok, reason, its, cits, coin, forces
 
-    def _set_line_search(self, kind: str) -> None:
-        """The line search of the problem's Newton (``basic``: full steps, the problem's own)."""
-        self.p.set_line_search(kind)
-        self.line_search = kind
+    @property
+    def line_search(self) -> str:
+        """The line search of the Newton solve under way (``basic``, or LINE_SEARCH_RETRY on a retry)."""
+        return self.p.line_search
 
     def _predictor_ratio(self, step: float, dV: float) -> float:
         """Extrapolation factor of the predictor for a (sub-)step of ``step`` s over which the
