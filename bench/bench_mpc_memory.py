@@ -1,4 +1,4 @@
-"""One MPC plan on an f-memory f_a beside one on f-coulomb (issue 24, deliverable 1): wall time
+"""One MPC plan on an f-memory f_a beside one on f-coulomb: wall time
 of the compiled plan (``native_mpc_memory.c`` / ``native_mpc.c``) and of the torch plan
 (:func:`deapull.control.mpc.solve` on :class:`~deapull.control.dynamics.CoinDynamics`), and how
 far the two plans are apart.

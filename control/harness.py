@@ -33,7 +33,7 @@ SAC_EPISODE_STEPS = 500
 SAC_START_VOLTAGE_V = (0.0, 350.0)
 #: reward added at each training step inside the window (the env's ``success_bonus``): without it
 #: the ±0.01 mm window is worth 0.01 per step against returns of order −50, and SAC stops ~20 µm
-#: short (docs/control.md, twenty-third session)
+#: short (docs/control.md)
 SAC_SUCCESS_BONUS = 1.0
 
 
@@ -136,13 +136,13 @@ class Bench:
         window (``terminate_on_success=False``), and each step inside earns
         :data:`SAC_SUCCESS_BONUS`, so the return rewards staying there. The paper's episode ends
         at the first entry: a SAC trained so has no value for what comes after, rushes in and
-        never settles (docs/control.md, twenty-third session)."""
+        never settles (docs/control.md)."""
         folder = self.sac_dirs[setup]
         if (folder / SAC_FILE).is_file():
             policy = SACPolicy.load(folder)
             if not policy.meta.get("success_bonus"):
-                print(f"note: the SAC policy in {folder} was trained without the bonus inside the window (before "
-                      "2026-11-28, or by hand): it may reach and not settle; remove the folder to retrain it here")
+                print(f"note: the SAC policy in {folder} was trained without the bonus inside the window "
+                      "(an older policy, or one trained by hand): it may reach and not settle; remove the folder to retrain it here")
             return policy
         env = self.task.env(self.surrogate(setup), 0.0, max_steps=SAC_EPISODE_STEPS,
                             terminate_on_success=False, start_voltage_V=SAC_START_VOLTAGE_V,

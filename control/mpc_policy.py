@@ -81,17 +81,23 @@ moves (measured on surrogate:C1 at 0.4 V per step: 3 of 10 episodes stood still 
 moves the setpoint (push, push, pull back) re-plans at once.
 
 **Learning across episodes** (``learn``, iterative learning control). The plant is
-deterministic and a repeated task starts from the same state, so what one episode found
-carries to the next of the same task (target, tolerance, noise, step and rate): an episode
-that ends with its estimate inside the tolerance of a single target, at most that far
-uncertain, leaves the voltage V_f it ended at and the bias filter's g with its variance.
-The next episode starts the filter from them and plays a rate schedule instead of planning
-its way there: the full rate up to V_f − ``MARGIN_V``, ``creep_V`` per step from there
-to V_f, then the hold. The hold's estimate starts where the learnt episode ended, with that
-estimate's variance plus (``LEARN_PATH_SHARE`` × tolerance)² for the other path (the fast
-schedule is not the path that episode took); the observations refine it, and the
-re-centring steps only where they move it confidently off the target. Each later episode learns again from
-where it ended, so a correction made in the hold carries on.
+deterministic and a repeated task starts from the same state, so the voltage path that one
+episode plays lands the coin where it landed before. An episode that ends with its estimate
+inside the tolerance of a single target, at most that far uncertain, starts what the next
+episodes of the same task (target, tolerance, noise, step and rate) play instead of planning:
+a rate schedule to an end voltage V_f, then the hold. The schedule runs at the plant's full rate
+up to where that first episode's coin started, then at the cruise rate, tapered over the
+approach distance (``approach_m`` in volts, by f_a's slope of the landing) down to ``creep_V``,
+so that the coin slides on to its stop instead of sticking and slipping (without the taper the
+landing is a staircase of V_f: surrogate:C2 noise-free settled 4/9 of episodes 2–10, 9/9 with
+it). The first V_f is that episode's end (where it turned back, if it went past), moved to the
+target by f_a's slope. Each scheduled episode holds V_f and averages its observations after
+``LANDING_COAST`` steps until its first re-centring: the mean of a landing. The landing line,
+fitted by weighted least squares to the landings and the first episode's end (a tolerance
+uncertain, ``LEARN_PATH_SHARE``) with f_a's slope as a prior, gives the next V_f where it meets the
+target; the hold's estimate starts from the line's value there and its variance, the
+observations refine it, and the re-centring steps only where they move it confidently off the
+target.
 """
 
 from __future__ import annotations
@@ -139,9 +145,12 @@ RECENTRE_STDS, RECENTRE_BAND = 1.5, 0.3
 STANDOFF_STD, MAX_WAIT = 0.3, 1500
 #: the rate schedule: the plant's full rate up to MARGIN_V below the voltage where the coin starts
 #: (f_a's onset on the way out; a learnt episode's final voltage), then the cruise rate (or creep);
-#: a learnt episode's hold starts with LEARN_PATH_SHARE × tolerance added to its std (the path it
-#: did not take);
-MARGIN_V, LEARN_PATH_SHARE = 5.0, 0.5
+#: the first episode's end counts in the landing line with LEARN_PATH_SHARE × tolerance added to its
+#: std (the schedule does not take its path);
+MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
+#: a scheduled episode's observations at its end voltage count as its landing after this many steps
+#: there (the coin's coast is over)
+LANDING_COAST = 10
 #: with a prior and the one-step loss, a field is planned at its estimate once its Cramér–Rao bound
 #: on the relative error is below this (the paper's 10 % inference error), else at the prior's median
 IDENTIFIED_CRLB = 0.1
@@ -320,6 +329,8 @@ class MPCPolicy(Policy):
         #: what earlier episodes of each task ended with (:meth:`_learn`): task -> {V_f, gain, gain_var}
         self.learned: dict = {}
         self.schedule = None
+        #: the scheduled episode's held observations at its end voltage: {V_f, steps, n, sum}
+        self.landing = None
 
     @staticmethod
     def _task_key(spec) -> tuple:
@@ -327,22 +338,108 @@ class MPCPolicy(Policy):
                 float(spec.dv_max_V))
 
     def _learn(self) -> None:
-        """Keep what the episode that just ended found, if it ended inside the tolerance of its one
-        target (by its own estimate, at most a tolerance uncertain): its final voltage and g."""
+        """What the episode that just ended tells the next one of its task (module docstring,
+        "Learning across episodes"). A planned episode that ended inside the tolerance of its one
+        target (by its own estimate, at most a tolerance uncertain) gives the first point of the
+        landing line: where it ended, or where it turned back if it went past, and f_a's slope. A
+        scheduled episode adds the mean of its held observations where the schedule landed. The
+        next end voltage is where the line fitted to them crosses the target (:meth:`_landing_fit`)."""
         if not (self.config.learn and self.config.terminal) or self.spec is None or self.previous is None or self.bias is None:
             return
         x, _, V = self.previous
         if self.target_m != float(self.spec.target_m) or self.moved_target:
             return
-        if abs(x - self.target_m) <= self.tolerance_m and self.estimate_std_m <= self.tolerance_m:
-            self.learned[self._task_key(self.spec)] = {"V_f": V, "gain": self.bias.gain,
-                                                       "gain_var": float(self.bias.P[1, 1]), "x_f": x,
-                                                       "x_var": float(self.bias.P[0, 0])}
+        key = self._task_key(self.spec)
+        entry, landing = self.learned.get(key), self.landing
+        if entry is not None and landing is not None and landing["n"] > 0:
+            entry["landings"].append((landing["V_f"], landing["sum"] / landing["n"],
+                                      max(self.spec.noise_std_m, 1e-9) ** 2 / landing["n"]))
+        elif entry is None and abs(x - self.target_m) <= self.tolerance_m and self.estimate_std_m <= self.tolerance_m:
+            V_ref, x_ref = (V, x) if self.turned is None else self.turned
+            # the schedule's shape: fast up to where this episode's coin started, and the approach
+            # distance as a taper in volts, by f_a's slope of the landing
+            self._schedule_shape = {"V_start": self.V_started, "taper_V": 0.0}
+            slope = self._landing_slope(V_ref)
+            if slope is not None and self.approach_m > 0:
+                self._schedule_shape["taper_V"] = self.approach_m / abs(slope)
+                slope = self._landing_slope(V_ref)
+            if slope is None:
+                return
+            # the planned path is not the schedule's: its end counts as a landing LEARN_PATH_SHARE
+            # tolerances uncertain
+            entry = {"slope": slope, "landings": [], **self._schedule_shape,
+                     "start": (V_ref, x_ref, float(self.bias.P[0, 0]) + (LEARN_PATH_SHARE * self.tolerance_m) ** 2)}
+        else:
+            return
+        V_f, x_f, x_var = self._landing_fit(entry)
+        entry.update(V_f=V_f, x_f=x_f, x_var=x_var, gain=self.bias.gain, gain_var=float(self.bias.P[1, 1]))
+        self.learned[key] = entry
+
+    def _landing_fit(self, entry: dict) -> tuple[float, float, float]:
+        """The landing line x = c + b (V − V̄) by weighted least squares over the landings seen (each
+        mean weighted by its count over σ²) and the first episode's end, with f_a's slope as a prior
+        on b (half its size as std): the end voltage where it crosses the target, clipped to the
+        voltage range, and the line's value and variance there (what the next hold starts from)."""
+        points = [entry["start"], *entry["landings"]]
+        V_mean = sum(p[0] / p[2] for p in points) / sum(1.0 / p[2] for p in points)
+        b0 = entry["slope"]
+        # normal equations in (c, b): the data, and the prior (b − b0)² / (b0 / 2)²
+        A = torch.zeros(2, 2, dtype=torch.float64)
+        r = torch.zeros(2, dtype=torch.float64)
+        for V, m, var in points:
+            row = torch.tensor([1.0, V - V_mean], dtype=torch.float64)
+            A += torch.outer(row, row) / var
+            r += row * m / var
+        A[1, 1] += 1.0 / (0.5 * b0) ** 2
+        r[1] += b0 / (0.5 * b0) ** 2
+        cov = torch.linalg.inv(A)
+        c, b = (cov @ r).tolist()
+        if not b * b0 > 0:                  # the data say the wrong sign: keep f_a's
+            b = b0
+        V_f = min(max(V_mean + (self.target_m - c) / b, 0.0), self.v_max_V)
+        row = torch.tensor([1.0, V_f - V_mean], dtype=torch.float64)
+        return V_f, c + b * (V_f - V_mean), float(row @ cov @ row)
+
+    def _schedule_nu(self, V_f: float) -> torch.Tensor:
+        """The learnt episode's rate schedule from rest at 0 V to ``V_f`` as ν (1, T, 1): the rate
+        up to ``MARGIN_V`` short of it, then ``creep_V`` per step (what :meth:`act` plays)."""
+        steps, V, entry = [], 0.0, {**self._schedule_shape, "V_f": V_f}
+        while V_f - V > 1e-9:
+            dV = self._schedule_step(entry, V)
+            steps.append(dV / self.dv_max_V)
+            V += dV
+        return torch.tensor(steps + [0.0] * LANDING_COAST, dtype=torch.float64).reshape(1, -1, 1)
+
+    def _schedule_step(self, entry: dict, V: float) -> float:
+        """ΔV of the learnt episode's rate schedule at ``V`` (module docstring): the plant's full
+        rate below where the first episode's coin started, then the cruise rate, tapered over the
+        last ``taper_V`` volts (the approach distance in volts) down to ``creep_V`` so that the
+        coin slides on to its stop rather than sticking and slipping; without an approach
+        distance, the cruise rate up to ``MARGIN_V`` short of ``V_f`` and ``creep_V`` from there."""
+        gap = entry["V_f"] - V
+        if V + self.plant_dv_max_V <= entry["V_start"]:
+            return min(self.plant_dv_max_V, gap)
+        creep = min(self.config.creep_V, self.dv_max_V)
+        if entry["taper_V"] > 0:
+            return min(self.dv_max_V, max(creep, self.dv_max_V * gap / entry["taper_V"]), gap)
+        return min(self.dv_max_V if gap > MARGIN_V else creep, gap)
+
+    def _landing_slope(self, V_f: float) -> float | None:
+        """dx/dV of where the schedule to ``V_f`` lands, by f_a at the planning φ scaled by the
+        episode's 1 + g (m/V; a difference over 2 V within [0, the voltage limit]); None where
+        f_a's coin does not move there (then nothing is learnt)."""
+        low = min(max(V_f - 1.0, 0.0), self.v_max_V - 2.0)
+        rest = self.dynamics.state(0.0, 0.0, 0.0, None)
+        ends = [float(self._roll(rest, self._schedule_nu(V))[0, -1, 0]) * X_UNIT_M for V in (low, low + 2.0)]
+        slope = (1.0 + self.gain_error) * (ends[1] - ends[0]) / 2.0
+        return slope if abs(slope) > 1e-9 else None
 
     def reset(self, spec) -> None:
         cfg = self.config
         self._learn()
-        self.moved_target = False
+        self.moved_target, self.landing = False, None
+        self.turned, self.V_peak = None, 0.0    # where a planned episode first turned back: (V, x)
+        self.V_started = 0.0                    # where the rate schedule's fast start ended
         self.schedule = self.learned.get(self._task_key(spec)) if cfg.learn and cfg.terminal else None
         self.spec, self.target_m, self.tolerance_m = spec, float(spec.target_m), float(spec.tolerance_m)
         self.dt, self.dv_max_V, self.v_max_V = float(spec.dt_s), float(spec.dv_max_V), float(spec.v_max_V)
@@ -514,7 +611,7 @@ class MPCPolicy(Policy):
         nu = torch.full((1, steps, 1), self.plant_dv_max_V / self.dv_max_V, dtype=torch.float64)
         path = self._roll(xi0, nu)[0, :, 0] * X_UNIT_M
         if float((path - x).abs().max()) > 1e-9:
-            self.started = True
+            self.started, self.V_started = True, V
         return not self.started
 
     def _cost(self, model_target_m: float):
@@ -566,6 +663,7 @@ class MPCPolicy(Policy):
     def act(self, obs, info) -> float:
         cfg = self.config
         x, V = self.spec.position_of(obs), float(info["V_V"])
+        observed = x
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
             self.target_m, self.plan, self.holding = target, None, False
@@ -582,6 +680,10 @@ class MPCPolicy(Policy):
         start = time.perf_counter()
         x, u = self._estimate(x, V)
         self.previous = (x, u, V)
+        if V > self.V_peak:
+            self.V_peak = V
+        elif V < self.V_peak and self.turned is None:
+            self.turned = (self.V_peak, x)
         xi0 = self.dynamics.state(x, u, V, self.memory)
         self.reach_end = None
         T = cfg.horizon
@@ -590,19 +692,23 @@ class MPCPolicy(Policy):
         # within the band plus its own uncertainty; at constant V static friction holds
         # the coin and the estimate's std shrinks as the observations average
         if self.schedule is not None:       # a learnt episode: the rate schedule to V_f, then the hold
-            gap = self.schedule["V_f"] - V
-            if gap > 1e-9:
-                rate = self.dv_max_V if gap > MARGIN_V else min(cfg.creep_V, self.dv_max_V)
+            if self.schedule["V_f"] - V > 1e-9:
                 self.solve_ms.append(1e3 * (time.perf_counter() - start))
-                return min(rate, gap)
-            # the hold starts where the learnt episode ended, x_f, with its variance and the path's
-            # (half a tolerance: the schedule is not the path that episode took), not from the
-            # estimate carried through the fast schedule (it rests on g over a path the filter has
-            # not seen); held, the observations refine it
-            x_var = self.schedule["x_var"] + (LEARN_PATH_SHARE * self.tolerance_m) ** 2
-            x = self.bias.reset(self.schedule["x_f"], self.bias.gain, float(self.bias.P[1, 1]), x_var)
+                return self._schedule_step(self.schedule, V)
+            # the hold starts where the landing line puts the coin, x_f, with the line's variance there,
+            # not from the estimate carried through the schedule (it rests on g over a path the filter
+            # has not seen); held, the observations refine it, and they are the next landing
+            x = self.bias.reset(self.schedule["x_f"], self.bias.gain, float(self.bias.P[1, 1]), self.schedule["x_var"])
+            self.landing = {"V_f": V, "steps": 0, "n": 0, "sum": 0.0, "open": True}
             self.schedule, self.holding = None, True
             self.previous = (x, 0.0, V)
+        if self.landing is not None and self.landing["open"] and V == self.landing["V_f"]:
+            self.landing["steps"] += 1      # the coin has come to rest after LANDING_COAST steps
+            if self.landing["steps"] <= LANDING_COAST:
+                self.solve_ms.append(1e3 * (time.perf_counter() - start))
+                return 0.0
+            self.landing["n"] += 1
+            self.landing["sum"] += observed
         error = abs(x - self.target_m)
         aim = self._aim(xi0, x, V)
         if self.hold_band > 0:
@@ -613,7 +719,10 @@ class MPCPolicy(Policy):
         if self.holding or self._wait(x, aim):
             self.plan = torch.zeros(1, T, 1, dtype=torch.float64)
             self.solve_ms.append(1e3 * (time.perf_counter() - start))
-            return self._recentre(x) if self.holding else 0.0
+            dV = self._recentre(x) if self.holding else 0.0
+            if dV and self.landing is not None:
+                self.landing["open"] = False        # what follows a re-centring is not the landing
+            return dV
         if not self.started and self._below_onset(xi0, x, V):
             self.solve_ms.append(1e3 * (time.perf_counter() - start))
             return min(self.plant_dv_max_V, self.v_max_V - V)

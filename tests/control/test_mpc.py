@@ -604,7 +604,7 @@ def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_next_epis
     assert policy.learned == {}                  # learnt when the next episode starts
     second = run_episode(env, policy, seed=1, step_limit=1800, hold_steps=50).row
     (learned,) = policy.learned.values()
-    assert learned["gain"] == gain and learned["V_f"] == V_end > 100
+    assert learned["gain"] == gain and abs(learned["V_f"] - V_end) < 10 and V_end > 100
     assert first["settled"] and second["settled"]
     assert second["iterations_to_target"] < 0.5 * first["iterations_to_target"]
     assert second["overshoot_m"] < 1e-5
@@ -628,3 +628,26 @@ def test_the_stand_off_does_not_wait_where_the_noise_cannot_be_averaged_down_in_
                        phi=plant.truth)
     run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50)
     assert policy._unresolvable() and policy.waited == 0
+
+
+def test_the_learnt_schedule_lands_where_the_landings_say(coulomb, sweep):
+    """Iterative learning on the end voltage: each learnt episode's held observations of where the
+    schedule landed join the landing line, and the next end voltage is where the line meets the
+    target. Noise-free on the fixture's surrogate the third episode lands on the target to the
+    line's accuracy, closer than the second (the first episode's end on its own path, moved
+    by f_a's slope). Broken once (the landings left out of the fit): every learnt episode lands
+    where the second did, 0.12 µm off."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None, approach_m=1e-4), phi=plant.truth)
+    rows = [run_episode(env, policy, seed=k, step_limit=1800, hold_steps=50).row for k in range(4)]
+    (learned,) = policy.learned.values()
+    assert len(learned["landings"]) == 2                  # episodes 2 and 3 (episode 4's joins at the next reset)
+    landed = [V_x[1] for V_x in learned["landings"]]
+    errors = [abs(x + 0.4e-3) for x in landed]
+    assert errors[1] < 0.5 * errors[0] and errors[1] < 2e-6
+    assert all(r["settled"] for r in rows[2:])
