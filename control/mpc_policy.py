@@ -148,6 +148,11 @@ STANDOFF_STD, MAX_WAIT = 0.3, 1500
 #: the first episode's end counts in the landing line with LEARN_PATH_SHARE × tolerance added to its
 #: std (the schedule does not take its path);
 MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
+#: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
+#: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
+#: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, and a schedule
+#: aimed by such landings reached 1/9 against 8/9 planned)
+LEARN_STD = 2.0
 #: a scheduled episode's observations at its end voltage count as its landing after this many steps
 #: there (the coin's coast is over)
 LANDING_COAST = 10
@@ -354,7 +359,8 @@ class MPCPolicy(Policy):
         if entry is not None and landing is not None and landing["n"] > 0:
             entry["landings"].append((landing["V_f"], landing["sum"] / landing["n"],
                                       max(self.spec.noise_std_m, 1e-9) ** 2 / landing["n"]))
-        elif entry is None and abs(x - self.target_m) <= self.tolerance_m and self.estimate_std_m <= self.tolerance_m:
+        elif (entry is None and not self._unresolvable() and abs(x - self.target_m) <= self.tolerance_m
+              and self.estimate_std_m <= LEARN_STD * self.tolerance_m):
             V_ref, x_ref = (V, x) if self.turned is None else self.turned
             # the schedule's shape: fast up to where this episode's coin started, and the approach
             # distance as a taper in volts, by f_a's slope of the landing
