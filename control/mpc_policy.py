@@ -83,7 +83,8 @@ moves the setpoint (push, push, pull back) re-plans at once.
 **Learning across episodes** (``learn``, iterative learning control). The plant is
 deterministic and a repeated task starts from the same state, so the voltage path that one
 episode plays lands the coin where it landed before. An episode that ends with its estimate
-inside the tolerance of a single target, at most that far uncertain, starts what the next
+inside the tolerance of a single target, at most ``LEARN_STD`` tolerances uncertain, where the noise
+can be averaged down (``_unresolvable``), starts what the next
 episodes of the same task (target, tolerance, noise, step and rate) play instead of planning:
 a rate schedule to an end voltage V_f, then the hold. The schedule runs at the plant's full rate
 up to where that first episode's coin started, then at the cruise rate, tapered over the
@@ -143,8 +144,9 @@ RECENTRE_STDS, RECENTRE_BAND = 1.5, 0.3
 #: stand off until the estimate's std is below STANDOFF_STD × tolerance, at most MAX_WAIT steps per
 #: setpoint (no stand-off where σ/√MAX_WAIT stays above it);
 STANDOFF_STD, MAX_WAIT = 0.3, 1500
-#: the rate schedule: the plant's full rate up to MARGIN_V below the voltage where the coin starts
-#: (f_a's onset on the way out; a learnt episode's final voltage), then the cruise rate (or creep);
+#: the rate schedule: the plant's full rate up to MARGIN_V below the voltage where f_a's coin starts,
+#: then the cruise rate (a learnt schedule without an approach distance: creep from MARGIN_V short of
+#: its end voltage);
 #: the first episode's end counts in the landing line with LEARN_PATH_SHARE × tolerance added to its
 #: std (the schedule does not take its path);
 MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
@@ -331,10 +333,11 @@ class MPCPolicy(Policy):
         self.inference = None
         self.spec = None
         self.previous = None
-        #: what earlier episodes of each task ended with (:meth:`_learn`): task -> {V_f, gain, gain_var}
+        #: what earlier episodes of each task taught (:meth:`_learn`): task -> {the schedule's shape and
+        #: V_f, the landing line's points and its value x_f and variance x_var at V_f, g and its variance}
         self.learned: dict = {}
         self.schedule = None
-        #: the scheduled episode's held observations at its end voltage: {V_f, steps, n, sum}
+        #: the scheduled episode's held observations at its end voltage: {V_f, steps, n, sum, open}
         self.landing = None
 
     @staticmethod
@@ -345,7 +348,7 @@ class MPCPolicy(Policy):
     def _learn(self) -> None:
         """What the episode that just ended tells the next one of its task (module docstring,
         "Learning across episodes"). A planned episode that ended inside the tolerance of its one
-        target (by its own estimate, at most a tolerance uncertain) gives the first point of the
+        target (by its own estimate, at most ``LEARN_STD`` tolerances uncertain) gives the first point of the
         landing line: where it ended, or where it turned back if it went past, and f_a's slope. A
         scheduled episode adds the mean of its held observations where the schedule landed. The
         next end voltage is where the line fitted to them crosses the target (:meth:`_landing_fit`)."""
@@ -407,8 +410,8 @@ class MPCPolicy(Policy):
         return V_f, c + b * (V_f - V_mean), float(row @ cov @ row)
 
     def _schedule_nu(self, V_f: float) -> torch.Tensor:
-        """The learnt episode's rate schedule from rest at 0 V to ``V_f`` as ν (1, T, 1): the rate
-        up to ``MARGIN_V`` short of it, then ``creep_V`` per step (what :meth:`act` plays)."""
+        """The learnt episode's rate schedule (:meth:`_schedule_step`, what :meth:`act` plays) from rest
+        at 0 V to ``V_f`` as ν (1, T, 1), then ``LANDING_COAST`` steps held."""
         steps, V, entry = [], 0.0, {**self._schedule_shape, "V_f": V_f}
         while V_f - V > 1e-9:
             dV = self._schedule_step(entry, V)
