@@ -92,8 +92,8 @@ approach distance (``approach_m`` in volts, by f_a's slope of the landing) down 
 so that the coin slides on to its stop instead of sticking and slipping (without the taper the
 landing is a staircase of V_f: surrogate:C2 noise-free settled 4/9 of episodes 2–10, 9/9 with
 it). The first V_f is that episode's end (where it turned back, if it went past), moved to the
-target by f_a's slope. Each scheduled episode holds V_f and averages its observations after
-``LANDING_COAST`` steps until its first re-centring: the mean of a landing. The landing line,
+target by f_a's slope. Each scheduled episode holds V_f and averages its observations until its
+first re-centring: the mean of a landing. The landing line,
 fitted by weighted least squares to the landings and the first episode's end (a tolerance
 uncertain, ``LEARN_PATH_SHARE``) with f_a's slope as a prior, gives the next V_f where it meets the
 target; the hold's estimate starts from the line's value there and its variance, the
@@ -155,9 +155,6 @@ MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
 #: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, and a schedule
 #: aimed by such landings reached 1/9 against 8/9 planned)
 LEARN_STD = 2.0
-#: a scheduled episode's observations at its end voltage count as its landing after this many steps
-#: there (the coin's coast is over)
-LANDING_COAST = 10
 #: with a prior and the one-step loss, a field is planned at its estimate once its Cramér–Rao bound
 #: on the relative error is below this (the paper's 10 % inference error), else at the prior's median
 IDENTIFIED_CRLB = 0.1
@@ -337,7 +334,7 @@ class MPCPolicy(Policy):
         #: V_f, the landing line's points and its value x_f and variance x_var at V_f, g and its variance}
         self.learned: dict = {}
         self.schedule = None
-        #: the scheduled episode's held observations at its end voltage: {V_f, steps, n, sum, open}
+        #: the scheduled episode's held observations at its end voltage: {V_f, n, sum, open}
         self.landing = None
 
     @staticmethod
@@ -411,13 +408,13 @@ class MPCPolicy(Policy):
 
     def _schedule_nu(self, V_f: float) -> torch.Tensor:
         """The learnt episode's rate schedule (:meth:`_schedule_step`, what :meth:`act` plays) from rest
-        at 0 V to ``V_f`` as ν (1, T, 1), then ``LANDING_COAST`` steps held."""
+        at 0 V to ``V_f`` as ν (1, T, 1)."""
         steps, V, entry = [], 0.0, {**self._schedule_shape, "V_f": V_f}
         while V_f - V > 1e-9:
             dV = self._schedule_step(entry, V)
             steps.append(dV / self.dv_max_V)
             V += dV
-        return torch.tensor(steps + [0.0] * LANDING_COAST, dtype=torch.float64).reshape(1, -1, 1)
+        return torch.tensor(steps, dtype=torch.float64).reshape(1, -1, 1)
 
     def _schedule_step(self, entry: dict, V: float) -> float:
         """ΔV of the learnt episode's rate schedule at ``V`` (module docstring): the plant's full
@@ -708,14 +705,10 @@ class MPCPolicy(Policy):
             # not from the estimate carried through the schedule (it rests on g over a path the filter
             # has not seen); held, the observations refine it, and they are the next landing
             x = self.bias.reset(self.schedule["x_f"], self.bias.gain, float(self.bias.P[1, 1]), self.schedule["x_var"])
-            self.landing = {"V_f": V, "steps": 0, "n": 0, "sum": 0.0, "open": True}
+            self.landing = {"V_f": V, "n": 0, "sum": 0.0, "open": True}
             self.schedule, self.holding = None, True
             self.previous = (x, 0.0, V)
         if self.landing is not None and self.landing["open"] and V == self.landing["V_f"]:
-            self.landing["steps"] += 1      # the coin has come to rest after LANDING_COAST steps
-            if self.landing["steps"] <= LANDING_COAST:
-                self.solve_ms.append(1e3 * (time.perf_counter() - start))
-                return 0.0
             self.landing["n"] += 1
             self.landing["sum"] += observed
         error = abs(x - self.target_m)
