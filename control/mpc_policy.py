@@ -364,16 +364,16 @@ class MPCPolicy(Policy):
             V_ref, x_ref = (V, x) if self.turned is None else self.turned
             # the schedule's shape: fast up to where this episode's coin started, and the approach
             # distance as a taper in volts, by f_a's slope of the landing
-            self._schedule_shape = {"V_start": self.V_started, "taper_V": 0.0}
-            slope = self._landing_slope(V_ref)
+            shape = {"V_start": self.V_started, "taper_V": 0.0}
+            slope = self._landing_slope(shape, V_ref)
             if slope is not None and self.approach_m > 0:
-                self._schedule_shape["taper_V"] = self.approach_m / abs(slope)
-                slope = self._landing_slope(V_ref)
+                shape["taper_V"] = self.approach_m / abs(slope)
+                slope = self._landing_slope(shape, V_ref)
             if slope is None:
                 return
             # the planned path is not the schedule's: its end counts as a landing LEARN_PATH_SHARE
             # tolerances uncertain
-            entry = {"slope": slope, "landings": [], **self._schedule_shape,
+            entry = {"slope": slope, "landings": [], **shape,
                      "start": (V_ref, x_ref, float(self.bias.P[0, 0]) + (LEARN_PATH_SHARE * self.tolerance_m) ** 2)}
         else:
             return
@@ -406,10 +406,10 @@ class MPCPolicy(Policy):
         row = torch.tensor([1.0, V_f - V_mean], dtype=torch.float64)
         return V_f, c + b * (V_f - V_mean), float(row @ cov @ row)
 
-    def _schedule_nu(self, V_f: float) -> torch.Tensor:
+    def _schedule_nu(self, shape: dict, V_f: float) -> torch.Tensor:
         """The learnt episode's rate schedule (:meth:`_schedule_step`, what :meth:`act` plays) from rest
-        at 0 V to ``V_f`` as ν (1, T, 1)."""
-        steps, V, entry = [], 0.0, {**self._schedule_shape, "V_f": V_f}
+        at 0 V to ``V_f`` as ν (1, T, 1), of the ``shape`` {V_start, taper_V}."""
+        steps, V, entry = [], 0.0, {**shape, "V_f": V_f}
         while V_f - V > 1e-9:
             dV = self._schedule_step(entry, V)
             steps.append(dV / self.dv_max_V)
@@ -430,13 +430,13 @@ class MPCPolicy(Policy):
             return min(self.dv_max_V, max(creep, self.dv_max_V * gap / entry["taper_V"]), gap)
         return min(self.dv_max_V if gap > MARGIN_V else creep, gap)
 
-    def _landing_slope(self, V_f: float) -> float | None:
+    def _landing_slope(self, shape: dict, V_f: float) -> float | None:
         """dx/dV of where the schedule to ``V_f`` lands, by f_a at the planning φ scaled by the
         episode's 1 + g (m/V; a difference over 2 V within [0, the voltage limit]); None where
         f_a's coin does not move there (then nothing is learnt)."""
         low = min(max(V_f - 1.0, 0.0), self.v_max_V - 2.0)
         rest = self.dynamics.state(0.0, 0.0, 0.0, None)
-        ends = [float(self._roll(rest, self._schedule_nu(V))[0, -1, 0]) * X_UNIT_M for V in (low, low + 2.0)]
+        ends = [float(self._roll(rest, self._schedule_nu(shape, V))[0, -1, 0]) * X_UNIT_M for V in (low, low + 2.0)]
         slope = (1.0 + self.gain_error) * (ends[1] - ends[0]) / 2.0
         return slope if abs(slope) > 1e-9 else None
 
