@@ -15,13 +15,17 @@ the Python scan (what the f-memory f_a ran on before); ``engine="native"`` is
     python bench/bench_inference.py --model out/models/fa_mem        # make bench BENCH=inference
 
 ``--calibration N`` measures instead what the inference can tell (goal G6): over N seeds of the
-noise, each seed's plant f_a with one of the design's coins C1..C8 in turn (:func:`design_coins`),
-the same push for ``--steps`` steps (default 2,500) with one Levenberg–Marquardt update every 10
-steps (the MPC's ``inference.every``), under each of ``--priors`` and ``--losses``; then, per field, the
-median relative error of the estimate and how often the posterior's 68 % interval
-(:func:`~deapull.control.inference.posterior`, Laplace) covers the truth, and the relative error
-of the onset voltage (where the estimate's f_a first moves the coin 1 µm under the push, against
-the truth's).
+noise, each seed's plant f_a with a coin of ``--truths`` (the design's C1..C8 in turn,
+:func:`design_coins`, or coins drawn from the family prior, :func:`family_draws`), the same push for
+``--steps`` steps (default 2,500) with one Levenberg–Marquardt update every 10 steps (the MPC's
+``inference.every``), under each of ``--priors`` and ``--losses``; then, per field, the median
+relative error of the estimate and how often the posterior's 68 % interval
+(:func:`~deapull.control.inference.posterior`: the profile likelihood for the rollout loss, Laplace
+for the one-step loss; Laplace beside it) covers the truth, and the relative error of the onset
+voltage (where the estimate's f_a first moves the coin 1 µm under the push, against the truth's).
+The design's coins sit at ±1 std of the family prior, so where the data leave a field to the prior
+(m_c) its interval's edge falls on them and their coverage is a coin toss; drawn from the prior,
+the truths test the interval as a Bayesian one.
 
     python bench/bench_inference.py --model out/models/fa_push --calibration 20 --noise 1e-6
 """
@@ -70,13 +74,31 @@ def onset_V(model, phi: Phi, steps: int, moved_m: float = 1e-6) -> float:
     return float("nan")
 
 
-def calibration(model, seeds: int, steps: int, noise: float, prior_name: str, loss: str = "rollout") -> dict:
-    """Estimates, 68 % intervals and onset voltages over ``seeds`` noise seeds (module docstring)."""
-    rows, coins = [], list(design_coins().values())
+def family_draws(prior: dict, seeds: int) -> list[Phi]:
+    """``seeds`` coins drawn from the log-normal ``prior`` (seed k from default_rng(1000 + k)): the truths
+    of a simulation-based calibration, where a Bayesian interval's coverage is its stated level."""
+    draws = []
     for seed in range(seeds):
-        coin = coins[seed % len(coins)]
+        rng = np.random.default_rng(1000 + seed)
+        draws.append(Phi(**{f: median * float(np.exp(std * rng.standard_normal())) for f, (median, std) in prior.items()}))
+    return draws
+
+
+def calibration(model, seeds: int, steps: int, noise: float, prior_name: str, loss: str = "rollout",
+                truths: str = "design") -> dict:
+    """Estimates, 68 % intervals and onset voltages over ``seeds`` noise seeds (module docstring). The
+    truths are the design's coins C1..C8 in turn (``design``), or coins drawn from the family prior
+    (``family``, :func:`family_draws`), whichever prior the inference states."""
+    prior = named_prior(prior_name)
+    if truths == "family":
+        coins = family_draws(named_prior("family"), seeds)
+    else:
+        coins = [list(design_coins().values())[seed % 8] for seed in range(seeds)]
+    rows = []
+    for seed in range(seeds):
+        coin = coins[seed]
         truth_onset = onset_V(model, coin, steps)
-        config = InferenceConfig(optimizer="lm", prior=named_prior(prior_name), observation_std_m=max(noise, 1e-9),
+        config = InferenceConfig(optimizer="lm", prior=prior, observation_std_m=max(noise, 1e-9),
                                  motion_threshold_m=3 * noise, seed=seed)
         if loss == "rollout":
             inf = RolloutInference(model, config, DT, dv_max_V=5.0, v_max_V=400.0, every=10)
@@ -86,19 +108,22 @@ def calibration(model, seeds: int, steps: int, noise: float, prior_name: str, lo
             inf.observe(x, V)
             if k % 10 == 0:
                 inf.update(1)
-        post = posterior(inf, noise)
+        laplace, post = posterior(inf, noise, profile=False), posterior(inf, noise)
         row = {"seed": seed, "onset_error": onset_V(model, inf.phi, steps) / truth_onset - 1}
         for f, p in post.items():
             truth = coin.value(f)
             row[f] = {"error": p["estimate"] / truth - 1, "covered": p["lo"] <= truth <= p["hi"],
-                      "std_log": p["std_log"]}
+                      "covered_laplace": laplace[f]["lo"] <= truth <= laplace[f]["hi"], "std_log": p["std_log"],
+                      "method": p["method"]}
         rows.append(row)
     fields = list(post)
-    return {"prior": prior_name, "loss": loss, "noise_m": noise, "steps": steps, "seeds": seeds,
+    return {"prior": prior_name, "loss": loss, "truths": truths, "noise_m": noise, "steps": steps, "seeds": seeds,
+            "interval": rows[0][fields[0]]["method"],
             "onset_abs_error_median": float(np.median([abs(r["onset_error"]) for r in rows])),
             "onset_abs_error_max": float(np.max([abs(r["onset_error"]) for r in rows])),
             **{f: {"abs_error_median": float(np.median([abs(r[f]["error"]) for r in rows])),
                    "coverage_68": float(np.mean([r[f]["covered"] for r in rows])),
+                   "coverage_68_laplace": float(np.mean([r[f]["covered_laplace"] for r in rows])),
                    "std_log_median": float(np.median([r[f]["std_log"] for r in rows]))} for f in fields}}
 
 
@@ -136,25 +161,30 @@ def main() -> None:
     p.add_argument("--priors", default="family,coins", help="priors of the calibration (family,coins)")
     p.add_argument("--out", default="", help="with --calibration: also write the results as JSON to this file "
                    "(make bench BENCH=inference: bench/reference/inference_calibration.json)")
+    p.add_argument("--truths", default="design,family",
+                   help="the calibration's true coins: design (C1..C8 in turn), family (drawn from the family prior)")
     p.add_argument("--losses", default="rollout,step",
                    help="the inference's losses in the calibration: rollout (output error), step (the paper's)")
     args = p.parse_args()
     torch.set_num_threads(1)
     model, _ = store.load(args.model)
     if args.calibration:
-        print(f"{model.kind} f_a {args.model} as the plant, the coins C1..C8 in turn, push of {args.steps} steps, "
+        print(f"{model.kind} f_a {args.model} as the plant, the coins of --truths {args.truths}, push of {args.steps} steps, "
               f"noise {args.noise:g} m, {args.calibration} seeds; goal (G6): 68 % intervals cover the truth 58-78 % of the seeds, "
               f"mu_b and the onset within 10 %")
         results = []
-        for loss, name in ((loss, name) for loss in args.losses.split(",") for name in args.priors.split(",")):
-            r = calibration(model, args.calibration, args.steps, args.noise, name, loss)
+        for loss, name, truths in ((loss, name, truths) for loss in args.losses.split(",")
+                                   for name in args.priors.split(",") for truths in args.truths.split(",")):
+            r = calibration(model, args.calibration, args.steps, args.noise, name, loss, truths)
             results.append(r)
-            print(f"loss {loss}, prior {name}: onset |error| median {100 * r['onset_abs_error_median']:.2f} %, "
+            print(f"loss {loss}, prior {name}, truths {truths} ({r['interval']} intervals): onset |error| median "
+                  f"{100 * r['onset_abs_error_median']:.2f} %, "
                   f"max {100 * r['onset_abs_error_max']:.2f} %")
             for f in ("mass_kg", "mu_b", "mu_t"):
                 if f in r:
                     print(f"  {f:8s} |error| median {100 * r[f]['abs_error_median']:6.2f} %, 68 % interval covers "
-                          f"{100 * r[f]['coverage_68']:5.1f} % of seeds, posterior std of log "
+                          f"{100 * r[f]['coverage_68']:5.1f} % of seeds (Laplace {100 * r[f]['coverage_68_laplace']:5.1f} %), "
+                          f"posterior std of log "
                           f"{r[f]['std_log_median']:.3g}")
         if args.out:
             write_json(args.out, {"schema": 1, "model": args.model, "kind": model.kind, "noise_m": args.noise,

@@ -600,10 +600,11 @@ class OnlineInference:
         return record
 
 
-def posterior(inference, noise_std_m: float, level: float = 0.68) -> dict:
-    """The Laplace approximation of the posterior of the inferred fields at the current estimate
-    of ``inference`` (:class:`OnlineInference`, or the output-error
-    :class:`~deapull.control.rollout_inference.RolloutInference`).
+def posterior(inference, noise_std_m: float, level: float = 0.68, profile: bool = True) -> dict:
+    """The posterior of the inferred fields at the current estimate of ``inference``
+    (:class:`OnlineInference`, or the output-error
+    :class:`~deapull.control.rollout_inference.RolloutInference`): its Laplace approximation, and for
+    the output-error inference its profile-likelihood interval.
 
     In log φ the posterior's covariance is (SᵀS/σ̂² + P)⁻¹: S = ∂x̂/∂log φ over everything
     observed (one-step predictions, or the episode's rollout), σ̂ the larger of ``noise_std_m``
@@ -612,6 +613,12 @@ def posterior(inference, noise_std_m: float, level: float = 0.68) -> dict:
     field, the ``estimate``, ``std_log`` (the posterior std of log φ) and the central ``level``
     interval (``lo``, ``hi``: estimate × exp(∓ z std_log), z the normal quantile); a field that
     neither the data nor the prior determine gets std_log = inf.
+
+    With ``profile`` (the default) and the output-error inference, ``lo`` and ``hi`` are instead its
+    profile-likelihood interval (:meth:`RolloutInference.profile_interval`), and ``method`` says which:
+    the push's data leave a curved ridge along μ_b and μ_t together, across which the Laplace
+    interval is too narrow (at 1 µm it covered 57 % of 96 coins drawn from the family prior, with
+    estimates up to 7 of its stds off; bench/bench_inference.py).
     """
     fields = tuple(inference.fields)
     sigma = max(noise_std_m, inference.misfit_m())
@@ -627,8 +634,13 @@ def posterior(inference, noise_std_m: float, level: float = 0.68) -> dict:
         std = [math.inf] * len(fields)
     z = statistics.NormalDist().inv_cdf(0.5 + level / 2)
     estimate = inference.estimate()
-    return {f: {"estimate": estimate[f], "std_log": sd, "lo": estimate[f] * math.exp(-z * sd),
-                "hi": estimate[f] * math.exp(z * sd)} for f, sd in zip(fields, std)}
+    out = {f: {"estimate": estimate[f], "std_log": sd, "lo": estimate[f] * math.exp(-z * sd),
+               "hi": estimate[f] * math.exp(z * sd), "method": "laplace"} for f, sd in zip(fields, std)}
+    if profile and hasattr(inference, "profile_interval"):
+        for f in fields:
+            out[f]["lo"], out[f]["hi"] = inference.profile_interval(f, noise_std_m, level)
+            out[f]["method"] = "profile"
+    return out
 
 
 def _sensitivity(inference: OnlineInference, base: Phi):

@@ -26,6 +26,7 @@ differences; the rollout runs through f_a's compiled MPC dynamics where availabl
 from __future__ import annotations
 
 import math
+import statistics
 
 import numpy as np
 import torch
@@ -221,6 +222,87 @@ class RolloutInference:
             if self.damping >= 1e12:
                 break
         return loss / max(self.transitions, 1)
+
+    def _fit(self, log_values, free: list[int], steps: int = 8) -> tuple[np.ndarray, float]:
+        """``log_values`` with the fields ``free`` (indices) moved by up to ``steps`` damped Gauss–Newton
+        steps down the loss at the current σ̂, the others held; returns (log φ, loss)."""
+        x = np.array(log_values, dtype=np.float64)
+        loss, damping = self._loss(x), 1e-3
+        if not free:
+            return x, loss
+        for _ in range(steps):
+            base = self.rollout(x)
+            r = (base - np.asarray(self.x[1:])) / self._sigma
+            J = np.empty((len(base), len(free)))
+            for j, i in enumerate(free):
+                trial = x.copy()
+                trial[i] += FD_STEP
+                J[:, j] = (self.rollout(trial) - base) / FD_STEP / self._sigma
+            if self.config.prior:
+                rp, Jp = self._prior(x)
+                r, J = np.concatenate([r, rp]), np.vstack([J, Jp[:, free]])
+            H, g = J.T @ J, J.T @ r
+            scale = np.diag(np.diag(H)) + 1e-12 * np.eye(len(free))
+            for _ in range(12):
+                step = -np.linalg.solve(H + damping * scale, g)
+                trial = x.copy()
+                trial[free] = np.clip(x[free] + step, self.lo[free], self.hi[free])
+                new = self._loss(trial)
+                if new < loss:
+                    gain, x, loss, damping = loss - new, trial, new, max(damping / 3, 1e-9)
+                    break
+                damping *= 4
+            else:
+                break
+            if gain < 1e-3:
+                break
+        return x, loss
+
+    def profile_interval(self, field: str, noise_std_m: float, level: float = 0.68,
+                         step_log: float | None = None) -> tuple[float, float]:
+        """The profile-likelihood interval of ``field`` (its values, not their logs) at ``level``.
+
+        The profile P(a) is the loss with log φ_field held at a and the other fields fitted
+        (:meth:`_fit`), σ̂ the larger of ``noise_std_m`` and the RMS misfit at the estimate, the
+        prior included. The interval is where P − min P ≤ z², z the normal quantile of ``level``
+        (Wilks). P is walked from the estimate outwards in steps of ``step_log`` (default a tenth of
+        the field's prior std, or 0.01) to where it crosses that level, or to the field's bound, and
+        the crossing interpolated linearly. A ridge (μ_b and μ_t moving together, which the push
+        sees as one onset) bends away from the Laplace approximation's straight line; the profile
+        follows it.
+        """
+        i = self.fields.index(field)
+        free = [j for j in range(len(self.fields)) if j != i]
+        self._sigma = max(noise_std_m, self.misfit_m())
+        prior = (self.config.prior or {}).get(field)
+        h = step_log or (0.1 * prior[1] if prior else 0.01)
+        z2 = statistics.NormalDist().inv_cdf(0.5 + level / 2) ** 2
+        start, best = self._fit(self.log_phi, free, steps=30)
+        walks = {}
+        for sign in (-1.0, 1.0):
+            x, points = start.copy(), [(float(start[i]), best)]
+            while True:
+                a = float(np.clip(points[-1][0] + sign * h, self.lo[i], self.hi[i]))
+                if a == points[-1][0]:
+                    break
+                x[i] = a
+                x, loss = self._fit(x, free, steps=30)
+                points.append((a, loss))
+                best = min(best, loss)
+                if loss - best > 2 * z2 or len(points) > 400:
+                    break
+            walks[sign] = points
+        points = sorted(walks[-1.0][1:] + walks[1.0])
+        k = min(range(len(points)), key=lambda j: points[j][1])
+        edges = []
+        for run in (points[k::-1], points[k:]):      # from the profile's minimum outwards, each way
+            edge = run[-1][0]
+            for (a0, p0), (a1, p1) in zip(run, run[1:]):
+                if p1 - best > z2:
+                    edge = a0 + (a1 - a0) * (z2 - (p0 - best)) / (p1 - p0)
+                    break
+            edges.append(edge)
+        return math.exp(edges[0]), math.exp(edges[1])
 
     def sensitivity(self) -> np.ndarray:
         """∂x̂_t/∂log φ (t × p) of the episode's rollout at the current estimate (forward differences)."""
