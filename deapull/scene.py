@@ -718,10 +718,10 @@ def from_resolved_toml(text: str) -> Scene:
 
 #: the sections that say how finely a scene is solved (its fidelity), not what it holds
 DISCRETISATION = ("mesh", "solver", "contact", "time")
-#: keys that choose the path to the solution, not the solution (to the Newton tolerance): a dataset
-#: made with other values is the same fidelity
+#: keys that choose the path to the solution, not the solution (to the Newton and the coupling
+#: tolerances): a dataset made with other values is the same fidelity
 SOLVER_PATH = (("solver", "jacobian_reuse_ratio"), ("solver", "line_search_reuse_ratio"), ("solver", "predictor"),
-               ("solver", "linear_solver"))
+               ("solver", "linear_solver"), ("solver", "coupling_tol_m"))
 
 
 def _fidelity_dict(scene_dict: dict) -> dict:

@@ -50,7 +50,7 @@ SHARP = ("dea.width_m=0.02", "coin.center_from_tip_m=0.003", "solver.jacobian_re
          "mesh.tip_zone_m=0.0", "mesh.rim_band_width_m=0.0", "mesh.rim_band_m=[]", "mesh.free_edge_divisions=2",
          "mesh.n_length=16",
          "mesh.n_passive=1", "contact.quadrature_degree=8", "contact.penalty_N_m3=2.24e9", "table.penalty_N_m3=1e11",
-         "solver.linear_solver='umfpack'")
+         "solver.linear_solver='umfpack'", "solver.coupling_tol_m=1e-10")
 COIN_SCENES = ("coin_pull", "coin_release")
 
 
