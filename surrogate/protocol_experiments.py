@@ -50,6 +50,8 @@ DEFAULT_KINDS = ("f-memory", "f-coulomb", "f", "nn", "lstm")
 #: protocol columns of the summary: column -> protocols pooled in it
 COLUMNS = {"ramp": ("ramp",), "rhr": ("rhr",), "release": ("release",), "triangle": ("triangle",),
            "random": ("random1", "random2", "random3")}
+#: the excitation protocols (``deapull sweep --protocols excitation``)
+EXCITATION_PROTOCOLS = tuple(p for column, protocols in COLUMNS.items() if column != "ramp" for p in protocols)
 CSV_COLUMNS = ("model", "run", "coin", "protocol", "role", "x_error_pct_travel", "mae_x_m", "max_abs_x_error_m",
                "final_x_error_m", "travel_m", "mae_Fx_N", "mae_Fy_N", "diverged", "steps", "rollout_ms",
                "out_of_range_warnings")
@@ -138,9 +140,18 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
     folder = out / kind
     if (folder / "model.json").is_file() and (folder / "model.pt").is_file():
         model, meta = store.load(folder)
-        log.info("%s: reusing the model in %s", kind, folder)
-        return model, meta.get("training", {})
-    train_runs = [_load(data_dir, excitation_dir, c, p) for c in design.train_coins for p in design.train_protocols]
+        if meta.get("training", {}).get("design") == json.loads(json.dumps(design.__dict__)):
+            log.info("%s: reusing the model in %s", kind, folder)
+            return model, meta.get("training", {})
+        log.info("%s: the model in %s was trained on another design: training again", kind, folder)
+    train_runs = []
+    for c in design.train_coins:
+        for p in design.train_protocols:
+            path = run_path(data_dir, excitation_dir, c, p)
+            if p != "ramp" and not path.is_file():
+                log.warning("training run %s is missing: training without it", path)
+                continue
+            train_runs.append(_load(data_dir, excitation_dir, c, p))
     val_runs = []
     for c in design.val_coins:
         for p in design.train_protocols:
@@ -353,28 +364,34 @@ def plot(rows: list[dict], kinds, design: Design, path: Path) -> Path | None:
 PAIRS = (("C1", "C2"), ("C3", "C4"), ("C5", "C6"), ("C7", "C8"))
 
 
-def pair_designs(coins=tuple(c for pair in PAIRS for c in pair)) -> list[tuple[tuple, Design]]:
-    """Leave one friction pair out at a time: train on the ramps of the six other coins, early-stop
-    on the next pair's first coin (it is not trained on), test on the held-out pair's ramps."""
+def pair_designs(coins=tuple(c for pair in PAIRS for c in pair), protocols=("ramp",)) -> list[tuple[tuple, Design]]:
+    """Leave one friction pair out at a time: train on the six other coins' runs of ``protocols``
+    (those that exist), early-stop on the next pair's first coin (it is not trained on), test on
+    the held-out pair's ramps and its runs of the other ``protocols``."""
     out = []
     for j, held in enumerate(PAIRS):
         val = PAIRS[(j + 1) % len(PAIRS)][0]
         train = tuple(c for c in coins if c not in held and c != val)
-        out.append((held, Design(train_coins=train, val_coins=(val,), test_coins=(), train_protocols=("ramp",),
+        out.append((held, Design(train_coins=train, val_coins=(val,), test_coins=held, train_protocols=tuple(protocols),
                                  test_protocols=(), ramp_coins=held)))
     return out
 
 
 def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=("f-coulomb",),
-              restarts: dict | None = None) -> list[dict]:
-    """:func:`run` on each design of :func:`pair_designs` (into ``<out>/pair_<C>_<C>/``); writes
-    ``pairs.csv`` and ``pairs.md`` (x error of each held-out ramp, % of travel, per kind) and
-    returns the rows (with ``pair``)."""
+              restarts: dict | None = None, excitation_dir: str | Path | None = None) -> list[dict]:
+    """:func:`run` on each design of :func:`pair_designs` (into ``<out>/pair_<C>_<C>/``), with the
+    excitation protocols when ``excitation_dir`` holds runs of them (trained on where the training
+    coins have them, tested on the held-out pair's); writes ``pairs.csv`` and ``pairs.md`` (x error of
+    each held-out run, % of travel, per kind) and returns the rows (with ``pair``)."""
     out = Path(out_dir)
+    excitation = Path(excitation_dir) if excitation_dir else None
+    protocols = ("ramp", *(p for p in EXCITATION_PROTOCOLS
+                           if excitation is not None and any(excitation.glob(f"C*_{p}.nc"))))
+    designs = pair_designs(protocols=protocols)
     rows = []
-    for held, design in pair_designs():
+    for held, design in designs:
         name = "pair_" + "_".join(held)
-        for row in run(data_dir, out / name, base, excitation_dir=data_dir, kinds=kinds, design=design,
+        for row in run(data_dir, out / name, base, excitation_dir=excitation or data_dir, kinds=kinds, design=design,
                        restarts=restarts):
             rows.append({**{k: row.get(k) for k in CSV_COLUMNS}, "pair": "/".join(held)})
     write_csv(out / "pairs.csv", rows, ("pair", *CSV_COLUMNS))
@@ -383,24 +400,28 @@ def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kind
     by = {(r["model"], r["run"]): r for r in rows}
     write_json(out / "pairs.json", {
         "kinds": list(kinds), "labels": {k: KINDS[k].label for k in kinds},
-        "designs": {"/".join(h): {"train": list(d.train_coins), "val": list(d.val_coins)} for h, d in pair_designs()},
-        "runs": [{"pair": p, "run": n, "travel_m": by[(kinds[0], n)]["travel_m"],
+        "designs": {"/".join(h): {"train": list(d.train_coins), "val": list(d.val_coins)} for h, d in designs},
+        "protocols": list(protocols),
+        "runs": [{"pair": p, "run": n, "protocol": by[(kinds[0], n)]["protocol"], "travel_m": by[(kinds[0], n)]["travel_m"],
                   **{k: None if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for k in kinds}}
                  for p, n in runs]}, indent=2)
     return rows
 
 
 def pairs_table(rows: list[dict], kinds) -> str:
-    """One line per held-out ramp: its pair, travel and each kind's x error (% of travel), then the
-    largest per kind."""
+    """One line per held-out run: its pair, travel and each kind's x error (% of travel), then the
+    largest per kind, on the ramps and on the excitation runs apart."""
     runs = list(dict.fromkeys((r["pair"], r["run"]) for r in rows))
     by = {(r["model"], r["run"]): r for r in rows}
     table = [{"pair": p, "run": n, "travel": 1e3 * by[(kinds[0], n)]["travel_m"],
               **{k: "div." if by[(k, n)]["diverged"] else f"{by[(k, n)]['x_error_pct_travel']:.2f}" for k in kinds}}
              for p, n in runs]
-    worst = {k: max((math.inf if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"]) for _, n in runs)
-             for k in kinds}
-    return (markdown_table(table, [("held-out pair", "pair", "s"), ("ramp", "run", "s"), ("travel mm", "travel", ".3f")]
+    lines = []
+    for what, group in (("ramp", [n for _, n in runs if by[(kinds[0], n)]["protocol"] == "ramp"]),
+                        ("excitation run", [n for _, n in runs if by[(kinds[0], n)]["protocol"] != "ramp"])):
+        for k in kinds if group else ():
+            worst = max(math.inf if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for n in group)
+            lines.append(f"* {KINDS[k].label}: largest x error on a held-out {what} {worst:.2f} % of travel")
+    return (markdown_table(table, [("held-out pair", "pair", "s"), ("run", "run", "s"), ("travel mm", "travel", ".3f")]
                            + [(f"{KINDS[k].label} x error [%]", k, "s") for k in kinds])
-            + "\n\n" + "\n".join(f"* {KINDS[k].label}: largest x error on a held-out ramp {worst[k]:.2f} % of travel"
-                                 for k in kinds))
+            + "\n\n" + "\n".join(lines))

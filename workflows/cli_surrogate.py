@@ -193,8 +193,10 @@ def cmd_experiments_protocols(args) -> int:
     from deapull.surrogate.data import parse_setups  # lazy: torch
     if args.held_out_pairs:
         kinds = parse_setups(args.models) if args.models else ["f-coulomb"]
+        excitation = Path(args.excitation) if args.excitation else Path(args.data) / "excitation"
         rows = pe.run_pairs(args.data, args.out, _config(args, "f"), kinds=kinds,
-                            restarts={k: restarts_for(args, k) for k in kinds})
+                            restarts={k: restarts_for(args, k) for k in kinds},
+                            excitation_dir=excitation if excitation.is_dir() else None)
         print(pe.pairs_table(rows, kinds))
         print(f"wrote {args.out}/pairs.csv, pairs.md, pairs.json")
         _publish(args, Path(args.out) / "pairs.json", "surrogate_pairs.json")
@@ -306,8 +308,9 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output folder (resumes: trained models and evaluations are reused)")
     p.add_argument("--models", default="", help="comma-separated kinds (default f-memory,f-coulomb,f,nn,lstm)")
     p.add_argument("--held-out-pairs", action="store_true",
-                   help="leave one friction pair out at a time (C1/C2 .. C7/C8), train on the other coins' ramps "
-                   "(--models, default f-coulomb; the coin and protocol flags are not used)")
+                   help="leave one friction pair out at a time (C1/C2 .. C7/C8), train on the other coins' ramps and "
+                   "excitation runs (those in --excitation), test on the pair's (--models, default f-coulomb; the coin "
+                   "and protocol flags are not used)")
     p.add_argument("--publish", default="", help="with --held-out-pairs: also copy pairs.json to "
                    "DIR/surrogate_pairs.json (bench/reference)")
     p.add_argument("--train-coins", default="C1", help="training coins (C1)")

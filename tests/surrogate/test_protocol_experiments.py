@@ -117,3 +117,27 @@ def test_held_out_pairs_never_train_or_validate_on_the_pair_they_test(sweep_dir,
         meta = json.loads((tmp_path / ("pair_" + r["pair"].replace("/", "_")) / "f-coulomb" / "model.json").read_text())
         assert r["run"] not in meta["card"]["training_coins"] + meta["card"]["validation_coins"]
     assert "largest x error on a held-out ramp" in (tmp_path / "pairs.md").read_text()
+
+
+def test_held_out_pairs_train_on_the_other_coins_excitation_and_test_the_pairs(sweep_dir, tmp_path):
+    """With an excitation folder the pair designs train on the other coins' excitation runs where they
+    exist (stand-ins here: C5_rhr, validation C3_rhr), test the held-out pair's (C1_rhr for C1/C2) beside
+    its ramps, report the two groups apart, and train again when the design changed. Broken once (the
+    design left out of the reuse check): the ramp-only models were reused, trained without C5_rhr."""
+    from deapull.surrogate.protocol_experiments import run_pairs
+    excitation = tmp_path / "excitation"
+    excitation.mkdir()
+    for coin, source in (("C1", "C4"), ("C3", "C6"), ("C5", "C7")):
+        shutil.copy(sweep_dir / f"{source}.nc", excitation / f"{coin}_rhr.nc")
+    out, cfg = tmp_path / "out", TrainConfig(kind="f-coulomb", epochs=2)
+    run_pairs(sweep_dir, out, cfg, kinds=("f-coulomb",))
+    rows = run_pairs(sweep_dir, out, cfg, kinds=("f-coulomb",), excitation_dir=excitation)
+    assert ("C1/C2", "C1_rhr") in [(r["pair"], r["run"]) for r in rows]
+    assert {r["run"] for r in rows if r["pair"] == "C1/C2"} == {"C1", "C2", "C1_rhr"}
+    meta = json.loads((out / "pair_C1_C2" / "f-coulomb" / "model.json").read_text())
+    assert meta["training"]["design"]["train_protocols"] == ["ramp", "rhr"]
+    assert "C5_rhr" in meta["card"]["training_coins"]                   # trained on the other coin's excitation
+    pairs = json.loads((out / "pairs.json").read_text())
+    assert {r["protocol"] for r in pairs["runs"]} == {"ramp", "rhr"}
+    text = (out / "pairs.md").read_text()
+    assert "largest x error on a held-out ramp" in text and "largest x error on a held-out excitation run" in text
