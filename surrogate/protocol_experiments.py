@@ -140,7 +140,8 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
     folder = out / kind
     if (folder / "model.json").is_file() and (folder / "model.pt").is_file():
         model, meta = store.load(folder)
-        if meta.get("training", {}).get("design") == json.loads(json.dumps(design.__dict__)):
+        trained = meta.get("training", {}).get("design") or {}
+        if all(trained.get(k) == list(getattr(design, k)) for k in ("train_coins", "val_coins", "train_protocols")):
             log.info("%s: reusing the model in %s", kind, folder)
             return model, meta.get("training", {})
         log.info("%s: the model in %s was trained on another design: training again", kind, folder)
@@ -364,36 +365,41 @@ def plot(rows: list[dict], kinds, design: Design, path: Path) -> Path | None:
 PAIRS = (("C1", "C2"), ("C3", "C4"), ("C5", "C6"), ("C7", "C8"))
 
 
-def pair_designs(coins=tuple(c for pair in PAIRS for c in pair), protocols=("ramp",)) -> list[tuple[tuple, Design]]:
-    """Leave one friction pair out at a time: train on the six other coins' runs of ``protocols``
-    (those that exist), early-stop on the next pair's first coin (it is not trained on), test on
-    the held-out pair's ramps and its runs of the other ``protocols``."""
+def pair_designs(coins=tuple(c for pair in PAIRS for c in pair), test_protocols=()) -> list[tuple[tuple, Design]]:
+    """Leave one friction pair out at a time: train on the ramps of the six other coins, early-stop
+    on the next pair's first coin (it is not trained on), test on the held-out pair's ramps and its
+    runs of ``test_protocols``."""
     out = []
     for j, held in enumerate(PAIRS):
         val = PAIRS[(j + 1) % len(PAIRS)][0]
         train = tuple(c for c in coins if c not in held and c != val)
-        out.append((held, Design(train_coins=train, val_coins=(val,), test_coins=held, train_protocols=tuple(protocols),
-                                 test_protocols=(), ramp_coins=held)))
+        out.append((held, Design(train_coins=train, val_coins=(val,), test_coins=held, train_protocols=("ramp",),
+                                 test_protocols=tuple(test_protocols), ramp_coins=held)))
     return out
 
 
 def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kinds=("f-coulomb",),
               restarts: dict | None = None, excitation_dir: str | Path | None = None) -> list[dict]:
-    """:func:`run` on each design of :func:`pair_designs` (into ``<out>/pair_<C>_<C>/``), with the
-    excitation protocols when ``excitation_dir`` holds runs of them (trained on where the training
-    coins have them, tested on the held-out pair's); writes ``pairs.csv`` and ``pairs.md`` (x error of
-    each held-out run, % of travel, per kind) and returns the rows (with ``pair``)."""
+    """:func:`run` on each design of :func:`pair_designs` (into ``<out>/pair_<C>_<C>/``), tested also
+    on the held-out pair's excitation runs in ``excitation_dir`` (held-out coin and protocol); writes
+    ``pairs.csv`` and ``pairs.md`` (x error of each held-out run, % of travel, per kind) and returns
+    the rows (with ``pair``).
+
+    The models train on ramps only: trained on the other coins' excitation runs as well, f-patch-lag
+    lost the ramps (C3/C4 held out, trained with C1's six excitation runs: 5.8 % of travel on C3's
+    ramp against 0.16 %) and still missed the pair's release and random1 by 6-12 % (docs/surrogate.md).
+    """
     out = Path(out_dir)
     excitation = Path(excitation_dir) if excitation_dir else None
-    protocols = ("ramp", *(p for p in EXCITATION_PROTOCOLS
-                           if excitation is not None and any(excitation.glob(f"C*_{p}.nc"))))
-    designs = pair_designs(protocols=protocols)
+    protocols = tuple(p for p in EXCITATION_PROTOCOLS if excitation is not None and any(excitation.glob(f"C*_{p}.nc")))
+    designs = pair_designs(test_protocols=protocols)
     rows = []
     for held, design in designs:
         name = "pair_" + "_".join(held)
         for row in run(data_dir, out / name, base, excitation_dir=excitation or data_dir, kinds=kinds, design=design,
                        restarts=restarts):
-            rows.append({**{k: row.get(k) for k in CSV_COLUMNS}, "pair": "/".join(held)})
+            if row["coin"] in held:
+                rows.append({**{k: row.get(k) for k in CSV_COLUMNS}, "pair": "/".join(held)})
     write_csv(out / "pairs.csv", rows, ("pair", *CSV_COLUMNS))
     write_text(out / "pairs.md", pairs_table(rows, kinds) + "\n")
     runs = list(dict.fromkeys((r["pair"], r["run"]) for r in rows))
@@ -401,7 +407,7 @@ def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kind
     write_json(out / "pairs.json", {
         "kinds": list(kinds), "labels": {k: KINDS[k].label for k in kinds},
         "designs": {"/".join(h): {"train": list(d.train_coins), "val": list(d.val_coins)} for h, d in designs},
-        "protocols": list(protocols),
+        "test_protocols": ["ramp", *protocols],
         "runs": [{"pair": p, "run": n, "protocol": by[(kinds[0], n)]["protocol"], "travel_m": by[(kinds[0], n)]["travel_m"],
                   **{k: None if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for k in kinds}}
                  for p, n in runs]}, indent=2)
@@ -421,7 +427,8 @@ def pairs_table(rows: list[dict], kinds) -> str:
                         ("excitation run", [n for _, n in runs if by[(kinds[0], n)]["protocol"] != "ramp"])):
         for k in kinds if group else ():
             worst = max(math.inf if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for n in group)
-            lines.append(f"* {KINDS[k].label}: largest x error on a held-out {what} {worst:.2f} % of travel")
+            shown = f"{worst:.2f} % of travel" if math.isfinite(worst) else "diverged"
+            lines.append(f"* {KINDS[k].label}: largest x error on a held-out {what} {shown}")
     return (markdown_table(table, [("held-out pair", "pair", "s"), ("run", "run", "s"), ("travel mm", "travel", ".3f")]
                            + [(f"{KINDS[k].label} x error [%]", k, "s") for k in kinds])
             + "\n\n" + "\n".join(lines))

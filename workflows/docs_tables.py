@@ -161,8 +161,8 @@ def surrogate_pairs(result: dict) -> str:
                               ("excitation runs", 2, [r for r in result["runs"] if r.get("protocol", "ramp") != "ramp"])):
         for k in kinds if group else ():
             worst = max((r[k] if r[k] is not None else math.inf) for r in group)
-            shown = f"{_f(worst, '.2f')} %" if math.isfinite(worst) else "diverged"
-            rows.append(f"* {labels[k]}, held-out {what}: largest {shown} (goal ≤ {goal} %);")
+            shown = f"largest {_f(worst, '.2f')} %" if math.isfinite(worst) else "a rollout diverged"
+            rows.append(f"* {labels[k]}, held-out {what}: {shown} (goal ≤ {goal} %);")
     rows[-1] = rows[-1].rstrip(";") + "."
     return "\n".join(rows)
 
