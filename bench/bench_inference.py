@@ -169,6 +169,9 @@ def main() -> None:
     torch.set_num_threads(1)
     model, _ = store.load(args.model)
     if args.calibration:
+        unknown = [t for t in args.truths.split(",") if t not in ("design", "family")]
+        if unknown:
+            p.error(f"--truths {','.join(unknown)}: choose from design, family")
         print(f"{model.kind} f_a {args.model} as the plant, the coins of --truths {args.truths}, push of {args.steps} steps, "
               f"noise {args.noise:g} m, {args.calibration} seeds; goal (G6): 68 % intervals cover the truth 58-78 % of the seeds, "
               f"mu_b and the onset within 10 %")

@@ -139,13 +139,15 @@ class RolloutInference:
         """(x̂_t − x̃_t)/σ̂ over the episode (σ̂ fixed through one update)."""
         return (self.rollout(log_values) - np.asarray(self.x[1:])) / self._sigma
 
-    def _sensitivity(self, log_values, base: np.ndarray) -> np.ndarray:
-        """∂x̂_t/∂log φ (m) by forward differences from the rollout ``base`` at ``log_values``."""
-        S = np.empty((len(base), len(self.fields)))
-        for i in range(len(self.fields)):
+    def _sensitivity(self, log_values, base: np.ndarray, indices=None) -> np.ndarray:
+        """∂x̂_t/∂log φ (m) by forward differences from the rollout ``base`` at ``log_values``, for the
+        fields ``indices`` (default all)."""
+        indices = range(len(self.fields)) if indices is None else indices
+        S = np.empty((len(base), len(indices)))
+        for j, i in enumerate(indices):
             trial = np.array(log_values, dtype=np.float64)
             trial[i] += FD_STEP
-            S[:, i] = (self.rollout(trial) - base) / FD_STEP
+            S[:, j] = (self.rollout(trial) - base) / FD_STEP
         return S
 
     def _prior(self, log_values) -> tuple[np.ndarray, np.ndarray]:
@@ -223,7 +225,7 @@ class RolloutInference:
                 break
         return loss / max(self.transitions, 1)
 
-    def _fit(self, log_values, free: list[int], steps: int = 8) -> tuple[np.ndarray, float]:
+    def _fit(self, log_values, free: list[int], steps: int = 30) -> tuple[np.ndarray, float]:
         """``log_values`` with the fields ``free`` (indices) moved by up to ``steps`` damped Gauss–Newton
         steps down the loss at the current σ̂, the others held; returns (log φ, loss)."""
         x = np.array(log_values, dtype=np.float64)
@@ -233,11 +235,7 @@ class RolloutInference:
         for _ in range(steps):
             base = self.rollout(x)
             r = (base - np.asarray(self.x[1:])) / self._sigma
-            J = np.empty((len(base), len(free)))
-            for j, i in enumerate(free):
-                trial = x.copy()
-                trial[i] += FD_STEP
-                J[:, j] = (self.rollout(trial) - base) / FD_STEP / self._sigma
+            J = self._sensitivity(x, base, free) / self._sigma
             if self.config.prior:
                 rp, Jp = self._prior(x)
                 r, J = np.concatenate([r, rp]), np.vstack([J, Jp[:, free]])
@@ -277,7 +275,7 @@ class RolloutInference:
         prior = (self.config.prior or {}).get(field)
         h = step_log or (0.1 * prior[1] if prior else 0.01)
         z2 = statistics.NormalDist().inv_cdf(0.5 + level / 2) ** 2
-        start, best = self._fit(self.log_phi, free, steps=30)
+        start, best = self._fit(self.log_phi, free)
         walks = {}
         for sign in (-1.0, 1.0):
             x, points = start.copy(), [(float(start[i]), best)]
@@ -286,7 +284,7 @@ class RolloutInference:
                 if a == points[-1][0]:
                     break
                 x[i] = a
-                x, loss = self._fit(x, free, steps=30)
+                x, loss = self._fit(x, free)
                 points.append((a, loss))
                 best = min(best, loss)
                 if loss - best > 2 * z2 or len(points) > 400:

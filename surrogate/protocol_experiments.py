@@ -135,6 +135,20 @@ def coin_phi(kind: str, ramp: SetupData):
     return cls.phi_of(ramp) if cls.physics else None
 
 
+def _runs(coins, protocols, data_dir: Path, excitation_dir: Path, role: str) -> list[SetupData]:
+    """The runs of ``coins`` × ``protocols``; a missing excitation run is left out with a warning
+    (a missing ramp raises)."""
+    runs = []
+    for c in coins:
+        for p in protocols:
+            path = run_path(data_dir, excitation_dir, c, p)
+            if p != "ramp" and not path.is_file():
+                log.warning("%s run %s is missing: %s without it", role, path, role)
+                continue
+            runs.append(_load(data_dir, excitation_dir, c, p))
+    return runs
+
+
 def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, excitation_dir: Path, out: Path):
     """The model of ``kind`` under ``out/<kind>``: loaded when trained before, else trained."""
     folder = out / kind
@@ -145,22 +159,8 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
             log.info("%s: reusing the model in %s", kind, folder)
             return model, meta.get("training", {})
         log.info("%s: the model in %s was trained on another design: training again", kind, folder)
-    train_runs = []
-    for c in design.train_coins:
-        for p in design.train_protocols:
-            path = run_path(data_dir, excitation_dir, c, p)
-            if p != "ramp" and not path.is_file():
-                log.warning("training run %s is missing: training without it", path)
-                continue
-            train_runs.append(_load(data_dir, excitation_dir, c, p))
-    val_runs = []
-    for c in design.val_coins:
-        for p in design.train_protocols:
-            path = run_path(data_dir, excitation_dir, c, p)
-            if p != "ramp" and not path.is_file():
-                log.warning("validation run %s is missing: validating without it", path)
-                continue
-            val_runs.append(_load(data_dir, excitation_dir, c, p))
+    train_runs = _runs(design.train_coins, design.train_protocols, data_dir, excitation_dir, "training")
+    val_runs = _runs(design.val_coins, design.train_protocols, data_dir, excitation_dir, "validation")
     ramps = {c: _load(data_dir, excitation_dir, c, "ramp") for c in (*design.train_coins, *design.val_coins)}
     phis = {}
     for c in ramps:
