@@ -52,7 +52,8 @@ def cmd_fem_study(args) -> int:
     from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
     convergence.load_study(args.study)          # a bad study file: InputError before any run
     result = convergence.run_study(args.study, Path(args.out), MPI.COMM_WORLD, args.ranks_per_case,
-                                   Path(args.publish) if args.publish else None, names(args.only))
+                                   Path(args.publish) if args.publish else None, names(args.only),
+                                   Path(args.reuse) if args.reuse else None)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print("\n".join(convergence.report_lines(result)))
@@ -106,5 +107,8 @@ def register(sub) -> None:
     p.add_argument("--publish", default="", help="also write the study's JSON into this folder (bench/reference)")
     p.add_argument("--only", default="", help="comma-separated cases to solve now (default: all); the summary "
                                               "takes every case solved so far")
+    p.add_argument("--reuse", default="", help="a published result of the study (bench/reference/<study>.json): "
+                                               "the cases not solved in --out are taken from it where their "
+                                               "overrides are unchanged")
     _common(p)
     p.set_defaults(func=cmd_fem_study)

@@ -45,6 +45,9 @@ STUDY_DIR = Path(__file__).resolve().parents[1] / "studies"
 SCHEMA = 1
 #: the common time grid of the x(t) differences (s): every record of a 1 s ramp lies on 1/720 s steps
 GRID = np.linspace(0.0, 1.0, 1001)
+#: the grid on which the published result keeps each case's x(t) (s), so that a later run of the
+#: study can take a case from it without its dataset (``reuse``)
+SERIES = np.linspace(0.0, 1.0, 201)
 
 
 def study_path(name_or_path: str | Path) -> Path:
@@ -146,7 +149,9 @@ def case_metrics(path: Path, time_s: float) -> dict:
 
 
 def mae_mm(a: dict, b: dict) -> float:
-    """Mean absolute difference of x(t) of two cases on the common grid (mm)."""
+    """Mean absolute difference of x(t) of two cases on the common grid (mm); NaN where one has no x(t)."""
+    if "t" not in a or "t" not in b:
+        return math.nan
     return float(np.mean(np.abs(np.interp(GRID, a["t"], a["x"]) - np.interp(GRID, b["t"], b["x"])))) * 1e3
 
 
@@ -192,7 +197,8 @@ def summarise(study: dict, metrics: dict) -> dict:
         finest.append(x["richardson"] if np.isfinite(x["richardson"]) else x["values"][-1])
     out = {"schema": SCHEMA, "study": s.get("name", Path(study["path"]).stem), "scene": s["scene"],
            "setup": s.get("setup"), "time_s": float(s["time_s"]), "safety_factor": safety, "ladders": ladders,
-           "cases": {n: {k: v for k, v in m.items() if k not in ("t", "x")} for n, m in metrics.items()},
+           "cases": {n: {**{k: v for k, v in m.items() if k not in ("t", "x")}, **_series(m)}
+                     for n, m in metrics.items()},
            "overrides": study["cases"]}
     dt = checks.get("dt", [])
     dt_change = (100.0 * abs(metrics[dt[1]]["x_at_t_mm"] / metrics[dt[0]]["x_at_t_mm"] - 1.0)
@@ -238,6 +244,40 @@ def summarise(study: dict, metrics: dict) -> dict:
                                  "overrides": study["cases"][n]}
                              for n in checks.get("candidates", []) if n in metrics}
     return out
+
+
+def _series(m: dict) -> dict:
+    """A case's x(t) on :data:`SERIES` (mm), for the published result; none where the case has none."""
+    if "t" not in m:
+        return {}
+    return {"x_series_mm": [round(float(v) * 1e3, 7) for v in np.interp(SERIES, m["t"], m["x"])]}
+
+
+def reused_metrics(previous: dict, study: dict, names) -> dict:
+    """The metrics of the cases ``names`` from a previously published result of the same study, where
+    it holds the case with the same overrides: case -> its metrics (x(t) from its stored series, where
+    it has one), marked ``reused``. A case whose overrides changed is not taken."""
+    out = {}
+    for name in names:
+        old = previous.get("cases", {}).get(name)
+        if old is None or previous.get("overrides", {}).get(name) != study["cases"][name]:
+            continue
+        m = {k: v for k, v in old.items() if k != "x_series_mm"}
+        if "x_series_mm" in old:
+            m.update(t=SERIES, x=np.asarray(old["x_series_mm"]) * 1e-3)
+        out[name] = {**m, "reused": True}
+    return out
+
+
+def keep_published_mae(result: dict, previous: dict) -> None:
+    """A ladder whose x(t) differences are missing (cases reused from a result that kept no series)
+    takes them from the previous result where that ladder had the same cases and x(time_s) values."""
+    for name, lad in result["ladders"].items():
+        old = previous.get("ladders", {}).get(name, {})
+        if (lad.get("complete") and not all(np.isfinite(lad["mae_x_mm"])) and old.get("cases") == lad["cases"]
+                and old.get("x_at_t_mm") == lad["x_at_t_mm"]):
+            lad["mae_x_mm"], lad["observed_order_mae_x"] = old["mae_x_mm"], old["observed_order_mae_x"]
+            lad["mae_from_previous_result"] = True
 
 
 def _shared_case(study: dict) -> str:
@@ -308,10 +348,12 @@ def report_lines(result: dict) -> list[str]:
 
 
 def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: Path | None = None,
-              only=None) -> dict | None:
+              only=None, reuse: Path | None = None) -> dict | None:
     """Solve a study's cases (resuming; ``only``: just these), then, on rank 0, summarise every case
     solved so far into ``<out>/<study>.json`` (and ``<publish>/<study>.json``) and return it; the
-    cases not solved are listed under ``failed`` with why."""
+    cases not solved are listed under ``failed`` with why. ``reuse``: a previously published result
+    of the study, from which the cases not solved in ``out`` are taken (same overrides only; listed
+    under ``reused``)."""
     from deapull.workflows.runner import load_result, run_cases
     study = load_study(name_or_path)
     name = Path(study["path"]).stem
@@ -330,10 +372,16 @@ def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: P
             metrics[r["case"]] = case_metrics(Path(out) / r["dataset"], float(study["study"]["time_s"]))
             metrics[r["case"]].update(dofs=r["dofs"], wall_s=r["wall_s"], ranks=r["ranks"])
     failed = {r["case"]: r.get("reason", "") for r in results if r.get("status") not in ("ok", "not run")}
+    previous = json.loads(Path(reuse).read_text()) if reuse is not None else {}
+    metrics.update(reused_metrics(previous, study, [n for n in study["cases"] if n not in metrics]))
     result = summarise(study, metrics)
+    keep_published_mae(result, previous)
     result["failed"] = failed
-    result["not_run"] = [r["case"] for r in results if r.get("status") == "not run"]
-    result["commands"] = [f"deapull fem-study --study {name} --out {out}"]
+    result["reused"] = sorted(n for n, m in metrics.items() if m.get("reused"))
+    result["not_run"] = [r["case"] for r in results if r.get("status") == "not run" and r["case"] not in metrics]
+    command = f"deapull fem-study --study {name} --out {out}"
+    result["commands"] = ([*previous.get("commands", []), f"{command} --only {','.join(only or [])} --reuse {reuse}"]
+                          if reuse is not None else [command])
     write_json(Path(out) / f"{name}.json", result, indent=2)
     if publish is not None:
         write_json(Path(publish) / f"{name}.json", result, indent=2)

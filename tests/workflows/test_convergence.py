@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from deapull.errors import InputError
@@ -138,3 +139,41 @@ def test_a_candidate_mesh_is_measured_against_the_reference():
     out = convergence.summarise(study, metrics)
     assert out["candidates"]["cand"]["error_percent"] == pytest.approx(100 * (x(0.25, 0.5) - 1.0), rel=1e-9)
     assert any(line.startswith("  candidate cand (") and "+3.125 %" in line for line in convergence.report_lines(out))
+
+
+def test_a_published_case_is_reused_only_with_its_overrides_and_keeps_its_x_of_t():
+    """``--reuse``: a case of a published result is taken where its overrides are the study's, with
+    x(t) from the stored series (the differences between levels come out as from the datasets, to
+    the series' resolution); a case whose overrides changed is solved again. Broken once with the
+    overrides' comparison left out: case b was taken."""
+    t = convergence.GRID
+    x_a, x_b = -1e-3 * t ** 2, -1.1e-3 * t ** 2
+    study = {"cases": {"a": [], "b": ["mesh.n_passive=4"]}}
+    metrics = {"a": {"x_at_t_mm": -0.9, "t": t, "x": x_a}, "b": {"x_at_t_mm": -1.0, "t": t, "x": x_b}}
+    previous = {"cases": {n: {"x_at_t_mm": m["x_at_t_mm"], **convergence._series(m)} for n, m in metrics.items()},
+                "overrides": {"a": [], "b": ["mesh.n_passive=2"]}}
+    got = convergence.reused_metrics(previous, study, ["a", "b"])
+    assert list(got) == ["a"] and got["a"]["reused"] and got["a"]["x_at_t_mm"] == -0.9
+    np.testing.assert_allclose(np.interp(t, got["a"]["t"], got["a"]["x"]), x_a, atol=1e-8)
+    reused_b = {"t": got["a"]["t"], "x": np.interp(got["a"]["t"], t, x_b)}
+    assert convergence.mae_mm(got["a"], reused_b) == pytest.approx(convergence.mae_mm(metrics["a"], metrics["b"]),
+                                                                   rel=1e-3)
+    assert math.isnan(convergence.mae_mm({"x_at_t_mm": 1.0}, metrics["a"]))
+
+
+def test_the_committed_reference_is_its_study_summarised_from_its_own_cases():
+    """The published contact reference, re-summarised from the cases it holds under today's study
+    file (studies/contact_reference.toml), gives its own bound, reference and data-fidelity error:
+    the JSON and the study's ladders agree. Broken once with the tip ladder's cases in the study
+    file set back to the data fidelity's coarse level: the bound came out 1.011 %."""
+    path = REPO / "bench" / "reference" / "contact_reference.json"
+    published = json.loads(path.read_text())
+    study = convergence.load_study("contact_reference")
+    metrics = convergence.reused_metrics(published, study, list(study["cases"]))
+    assert sorted(metrics) == sorted(published["cases"])
+    again = convergence.summarise(study, metrics)
+    convergence.keep_published_mae(again, published)
+    for key in ("bound_percent", "reference_x_at_t_mm", "default_error_percent"):
+        assert again[key] == pytest.approx(published[key], rel=1e-9), key
+    for name, lad in again["ladders"].items():
+        assert lad["cases"] == published["ladders"][name]["cases"]
