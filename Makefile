@@ -27,8 +27,8 @@ demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3 (
 	$(MPIRUN) $(DEAPULL) solve --scene coin_pull --out $(OUT)/demo
 	$(DEAPULL) plot $(OUT)/demo/C3.nc --out $(OUT)/demo/C3.png
 
-test: setup ## run the test suite (serial and mpirun -n 2 checks)
-	$(PY) -m pytest -q
+test: setup ## run the test suite over $(NP) workers (pytest-xdist; serial and mpirun -n 2 checks)
+	$(PY) -m pytest -q -n $(NP)
 
 test-data: setup ## regenerate the surrogate tests' FEM fixture tests/data/sweep (mpirun -n 2, about a minute)
 	$(PY) tests/data/make_sweep.py
