@@ -545,7 +545,7 @@ class DEAProblem:
             Fx = r_x + R_x,        Fy = W − r_y − R_y       (Fy positive downward)
 
         with R the table's reaction on the DEA (:meth:`table_reaction`, 0 without a table),
-        up to the sum of R over the free rows, i.e. the Newton residual. One vector assembly.
+        up to the sum of R over the free rows, i.e. the Newton residual (:meth:`clamp_reaction`).
         """
         if self.contact is None:
             return 0.0, 0.0
@@ -555,7 +555,9 @@ class DEAProblem:
 
     def clamp_reaction(self) -> tuple[float, float]:
         """(r_x, r_y): force of the clamp on the DEA, N, from the residual assembled on every row
-        (Dirichlet rows not zeroed): the sum of R over the clamp rows. One vector assembly."""
+        (Dirichlet rows not zeroed): the sum of R over the clamp rows. Read off the solve's last
+        residual when the unknowns, the constants and the previous state are those it was assembled
+        at (after a converged solve, before ``accept()``), else one vector assembly."""
         k = self.symmetry_factor
         state, sums = self._last_reaction if self._last_reaction is not None else (None, None)
         if state is None or not np.array_equal(state, self._fingerprint(self.w.vector.array_r)):

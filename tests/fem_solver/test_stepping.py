@@ -515,3 +515,30 @@ def test_a_line_search_keeps_its_jacobian_longer_and_lands_on_the_same_path(tmp_
     assert kept < 0.9 * slow
     # the step control counts Newton iterations, so the steps may differ: x(t) compared between them
     assert float(np.abs(np.interp(x_slow[:, 0], *x_kept.T) - x_slow[:, 1]).max()) < 1e-8
+
+
+def test_the_clamp_reaction_read_off_the_solve_is_a_fresh_assembly_and_never_stale(tmp_path):
+    """After a converged solve the clamp reaction comes from the solve's last residual (no
+    assembly): it equals a fresh assembly of F at that state; once the load has moved (a new
+    voltage, nothing solved since) the kept sums are not used. Broken once with the constants
+    left out of the fingerprint: the second check returned the pre-load reaction."""
+    stepper = _stepper(tmp_path, "load.end_time_s=0.05")
+    stepper.start()
+    stepper.advance(20.0, 1 / 720)
+    p = stepper.p
+
+    def fresh():
+        kept, p._last_reaction = p._last_reaction, None
+        try:
+            return p.clamp_reaction()
+        finally:
+            p._last_reaction = kept
+
+    p.set_load(40.0, float(p.X.value), 1 / 720)
+    assert p.solve().converged
+    assert p.clamp_reaction() == pytest.approx(fresh(), rel=1e-12, abs=1e-15)
+    before = p.clamp_reaction()
+    p.set_load(120.0, float(p.X.value), 1 / 720)           # the Maxwell stress changes, the unknowns do not
+    now = p.clamp_reaction()
+    assert now == pytest.approx(fresh(), rel=1e-12, abs=1e-15)
+    assert abs(now[0] - before[0]) + abs(now[1] - before[1]) > 1e-9
