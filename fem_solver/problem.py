@@ -692,10 +692,7 @@ class DEAProblem:
         """Largest penetration into the obstacle (m) at the contact integral's own
         quadrature points on the DEA's underside — the only places where the penalty and the
         friction act (``contact.quadrature_degree`` / ``quadrature_rule``)."""
-        if self.contact is None:
-            return 0.0
-        local = float(np.max(self._obstacle_depth_at_points(), initial=0.0))
-        return self.comm.allreduce(local, op=MPI.MAX)
+        return self.contact_point_stats()[1]
 
     def contact_point_stats(self) -> tuple[int, float]:
         """(:meth:`active_contact_points`, :meth:`max_penetration_at_points`) from one evaluation
@@ -709,9 +706,7 @@ class DEAProblem:
     def active_contact_points(self) -> int:
         """Number of the contact integral's quadrature points that touch the obstacle (penetration
         > 0: the points that carry Fx and Fy), in the modelled mesh (a half model: its half)."""
-        if self.contact is None:
-            return 0
-        return int(self.comm.allreduce(int(np.count_nonzero(self._obstacle_depth_at_points() > 0)), op=MPI.SUM))
+        return self.contact_point_stats()[0]
 
     def table_penetration(self) -> float:
         """Largest penetration of the DEA's underside into the table (m) at the table integral's
