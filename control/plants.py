@@ -141,8 +141,7 @@ class FEMPlant:
     (``start(0)``). A step that the FEM cannot solve raises :class:`PlantFailed`. The
     episode's accepted FEM records are kept (:attr:`records`), and :meth:`save` writes them
     as a dataset of the FEM's contract: an FEM run under the controller's voltages, which
-    the surrogates train on like any other run (dataset aggregation,
-    :mod:`deapull.workflows.dagger`).
+    the surrogates train on like any other run (``deapull control --set control.save_fem_runs=DIR``).
     """
 
     def __init__(self, scene, work_dir: str | Path | None = None, name: str = "fem", dt: float = DT_S):

@@ -272,7 +272,7 @@ def register(sub) -> None:
                         "section: one key of the FEM plant's scene (validated like the file); repeatable")
     p.add_argument("--save-fem-runs", default=None, metavar="DIR",
                    help="write each FEM plant episode as a dataset DIR/<setup>_<policy>_n<noise>_e<episode>.nc (the "
-                        "FEM's contract; the surrogates train on it: dataset aggregation)")
+                        "FEM's contract; the surrogates train on it)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     for action in p._actions:          # --help lists the main options; --options and presets the rest
@@ -284,66 +284,3 @@ def register(sub) -> None:
         if action.dest not in NOT_IN_PRESETS and action.dest != "help":
             action.real_default, action.default = action.default, argparse.SUPPRESS
     p.set_defaults(func=cmd_control, parser=p)
-    register_dagger(sub)
-
-
-def dagger_config(args):
-    """The :class:`~deapull.workflows.dagger.DaggerConfig` of ``deapull dagger``'s arguments."""
-    from deapull.workflows import control, dagger  # lazy: torch and gymnasium load only when a run starts
-    from deapull.surrogate.data import parse_setups  # lazy: as above
-    from deapull.control.mpc_policy import mpc_config  # lazy: as above
-    preset = read_preset(preset_path(args.preset))
-    table = preset.get("control", {})
-    settings = control.ControlConfig(
-        policies=["mpc"], plants=control.parse_plants(args.plant, args.scene), noises=control.parse_noises(args.noise),
-        out=Path(args.out), episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, hold_steps=args.hold,
-        target_m=1e-3 * args.target_mm, data=Path(args.data),
-        mpc_phi=table.get("mpc_phi", "infer"), phi_prior=table.get("phi_prior", "none"),
-        mpc=mpc_config(merge_tables(preset.get("mpc", {}), mpc_sets(args.overrides))),
-        scene=args.scene, overrides=[o for o in overrides_of(args) if not o.strip().startswith("mpc.")],
-        progress=False)
-    return dagger.DaggerConfig(control=settings, data=Path(args.data), train=parse_setups(args.train),
-                               val=args.val, out=Path(args.out), rounds=args.rounds, epochs=args.epochs,
-                               kind=args.model_kind,
-                               model=None if args.mpc_model is None else Path(args.mpc_model), seed=args.seed)
-
-
-def cmd_dagger(args) -> int:
-    from deapull.workflows import dagger  # lazy: as above
-    config = dagger_config(args)
-    rows = dagger.run(config)
-    print(dagger.summary_table(rows))
-    print(f"wrote {config.out}/dagger.csv, dagger.md, models/, runs/ and control/")
-    return 0
-
-
-def register_dagger(sub) -> None:
-    """Add ``dagger`` (dataset aggregation of the MPC's model on the FEM plant)."""
-    p = sub.add_parser("dagger", help="dataset aggregation: run the MPC on the FEM plant, add its transitions to "
-                                      "f_a's training data, retrain, repeat until the closed loop stops improving")
-    p.add_argument("--plant", default="fem:C3", help="FEM plant(s), comma-separated (default fem:C3)")
-    p.add_argument("--noise", default="1e-4", help="observation noise std(s) (m; default 1e-4)")
-    p.add_argument("--episodes", type=int, default=1, help="episodes per plant, noise and round (default 1)")
-    p.add_argument("--rounds", type=int, default=3, help="most rounds (default 3)")
-    p.add_argument("--epochs", type=int, default=300, help="training epochs of each f_a (default 300)")
-    p.add_argument("--data", default="data", help="folder of the ramps (<setup>.nc) f_a trains on")
-    p.add_argument("--train", default="C3,C4,C5,C6,C7", help="ramps f_a trains on (default C3..C7)")
-    p.add_argument("--val", default="C8", help="ramp that early-stops every training (default C8)")
-    p.add_argument("--mpc-model", default=None, help="f_a of round 0 (default: trained here on the ramps)")
-    p.add_argument("--preset", default="fem",
-                   help="the control preset whose MPC runs each round (its [mpc] table, mpc_phi and phi_prior; "
-                        "default fem, as make control PRESET=fem); --set mpc.KEY=VALUE changes one setting")
-    p.add_argument("--model-kind", default=None,
-                   help="f_a's kind, retrained every round: f-coulomb or f-memory (default: --mpc-model's kind, "
-                        "else f-coulomb)")
-    p.add_argument("--max-steps", type=int, default=3000, help="steps before an episode counts as failed (3000)")
-    p.add_argument("--hold", type=int, default=100, help="steps held after the first success (100)")
-    p.add_argument("--target-mm", type=float, default=-1.0, help="target coin position (mm; default -1)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--scene", default="coin_pull", help="scene of the FEM plant (coin_pull)")
-    add_fidelity_arg(p)
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="mpc.KEY=VALUE: one MPC setting (deapull control --options lists them); any other "
-                        "section: one key of the FEM plant's scene; repeatable")
-    p.set_defaults(func=cmd_dagger)

@@ -181,11 +181,10 @@ def parse_noises(text: str) -> list[float]:
     return out
 
 
-def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
-    """Refuse bad settings, naming the argument, before any model is loaded.
-    ``mpc_model_trained=False``: the MPC's model is made later (``deapull dagger``'s round 0),
-    so its folder is not required yet. Returns the FEM plants that cannot reach the task, by
-    name, with why (only with ``unreachable="report"``; "refuse" raises instead)."""
+def check(config: ControlConfig) -> dict:
+    """Refuse bad settings, naming the argument, before any model is loaded. Returns the FEM
+    plants that cannot reach the task, by name, with why (only with ``unreachable="report"``;
+    "refuse" raises instead)."""
     if config.unreachable not in UNREACHABLE:
         raise InputError(f"--unreachable {config.unreachable!r}: choose one of {', '.join(UNREACHABLE)}")
     for name, value, low in (("--episodes", config.episodes, 1), ("--max-steps", config.max_steps, 1),
@@ -218,10 +217,9 @@ def check(config: ControlConfig, mpc_model_trained: bool = True) -> dict:
             raise InputError("control.mpc_phi = 'prior' plans with the prior's median: it needs --phi-prior coins")
         if config.phi_prior not in PHI_PRIORS:
             raise InputError(f"--phi-prior {config.phi_prior!r}: choose one of {', '.join(PHI_PRIORS)}")
-        if mpc_model_trained:
-            _require_model(Path(config.mpc_model), "--mpc-model")
-            if config.mpc_phi == "infer":
-                _require_inference(Path(config.mpc_model), config.mpc.inference.engine)
+        _require_model(Path(config.mpc_model), "--mpc-model")
+        if config.mpc_phi == "infer":
+            _require_inference(Path(config.mpc_model), config.mpc.inference.engine)
     return unreachable
 
 
