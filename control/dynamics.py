@@ -11,7 +11,7 @@ V' = clip(V + ν ΔV_max, 0, V_max) (the env's own clipping, so V ∈ [0, V_max]
 plan as in the env), then (x', u') = f_a((x, u), (V', Δt); V, φ) with the current φ.
 
 **Memory.** A kind whose step needs more than the voltage before it (``f-memory``: the tip's
-contact point P and friction T of the previous step, :attr:`Surrogate.plan_memory`) has
+contact point P and friction T of the previous step, :attr:`~deapull.control.adapters.Adapter.plan_memory`) has
 them appended to ξ in their own units (P / 1 mm, T / 0.01 N), carried through the rollout
 and differentiated like the rest: ξ = (x, u, V, P, T). The cost ignores them.
 
@@ -32,6 +32,7 @@ import copy
 import torch
 
 from deapull.control import mpc
+from deapull.control.adapters import adapter, capabilities
 from deapull.errors import InputError
 from deapull.surrogate.phi import Phi
 
@@ -56,14 +57,15 @@ class CoinDynamics:
     """
 
     def __init__(self, model, phi: Phi, dt: float, dv_max_V: float, v_max_V: float):
-        if not model.can("plan"):
+        if "plan" not in capabilities(model):
             raise InputError(f"the MPC plans with a model that can plan (capability 'plan'); {model.kind!r} "
-                             f"offers {sorted(model.capabilities) or 'nothing'}")
+                             f"offers {sorted(capabilities(model)) or 'nothing'}")
         self.model = copy.deepcopy(model).double().eval().requires_grad_(False)
+        self.adapter = adapter(self.model)
         self.phi = phi
         self.dt, self.dv_max_V, self.v_max_V = float(dt), float(dv_max_V), float(v_max_V)
         #: units of the memory entries appended to ξ (empty: ξ = (x, u, V))
-        self.memory_units = torch.tensor([unit for _, unit in model.plan_memory], dtype=torch.float64)
+        self.memory_units = torch.tensor([unit for _, unit in self.adapter.plan_memory], dtype=torch.float64)
         self.n = 3 + len(self.memory_units)
 
     def __call__(self, xi: torch.Tensor, nu: torch.Tensor) -> torch.Tensor:
@@ -72,10 +74,10 @@ class CoinDynamics:
         s = torch.stack([x, u], -1)
         a = torch.stack([V_next, torch.full_like(V_next, self.dt)], -1)
         if self.n == 3:
-            s_next, _ = self.model.plan_step(s, a, V, self.phi)
+            s_next, _ = self.adapter.plan_step(s, a, V, self.phi)
             tail = ()
         else:
-            s_next, _, memory = self.model.plan_step_memory(s, a, V, xi[:, 3:] * self.memory_units, self.phi)
+            s_next, _, memory = self.adapter.plan_step_memory(s, a, V, xi[:, 3:] * self.memory_units, self.phi)
             tail = (memory / self.memory_units).unbind(-1)
         return torch.stack([s_next[:, 0] / X_UNIT_M, s_next[:, 1] / U_UNIT_M_S, V_next / V_UNIT_V, *tail], -1)
 
@@ -88,7 +90,7 @@ class CoinDynamics:
             return xi
         if memory is None:
             with torch.no_grad():
-                memory = self.model.plan_start(torch.tensor([V_V], dtype=torch.float64)) / self.memory_units
+                memory = self.adapter.plan_start(torch.tensor([V_V], dtype=torch.float64)) / self.memory_units
         return torch.cat([xi, torch.as_tensor(memory, dtype=torch.float64).reshape(1, -1)], -1)
 
 

@@ -45,6 +45,7 @@ import torch
 
 from deapull import scene as scenes
 from deapull.control import native
+from deapull.control.adapters import adapter, capabilities
 from deapull.errors import InputError
 from deapull.surrogate.phi import FIELDS, Phi
 
@@ -242,42 +243,43 @@ class Predictor:
     """
 
     def __init__(self, model):
-        if not model.can("infer"):
+        if "infer" not in capabilities(model):
             raise InputError(f"online inference needs a model that can infer φ (capability 'infer'); "
-                             f"{model.kind!r} offers {sorted(model.capabilities) or 'nothing'}")
+                             f"{model.kind!r} offers {sorted(capabilities(model)) or 'nothing'}")
         self.model = model
+        self.adapter = adapter(model)
 
     @property
     def memory(self) -> bool:
-        """Whether the model's step needs memory entries (:attr:`Surrogate.plan_memory`) that
-        the buffer carries along its rows."""
-        return bool(self.model.plan_memory)
+        """Whether the model's step needs memory entries (:attr:`~deapull.control.adapters.Adapter.plan_memory`)
+        that the buffer carries along its rows."""
+        return bool(self.adapter.plan_memory)
 
     def cache(self, x_prev, x, V, V_next, dt, memory=None) -> dict:
         if self.memory:
-            return self.model.inference_columns(x_prev, x, V, V_next, dt, memory)
-        return self.model.inference_columns(x_prev, x, V, V_next, dt)
+            return self.adapter.inference_columns(x_prev, x, V, V_next, dt, memory)
+        return self.adapter.inference_columns(x_prev, x, V, V_next, dt)
 
     def memory_after(self, c: dict, phi: Phi) -> torch.Tensor:
         """Memory kinds: the entries after each row's transition."""
-        return self.model.memory_after(c, phi)
+        return self.adapter.memory_after(c, phi)
 
     def memory_along(self, c: dict, phi: Phi) -> torch.Tensor:
         """Memory kinds: the entries before each of consecutive rows, re-derived from the first."""
-        return self.model.memory_along(c, phi)
+        return self.adapter.memory_along(c, phi)
 
     def predict(self, c: dict, phi: Phi) -> torch.Tensor:
         """x̂_{t+1} of the cached rows ``c`` for the coin ``phi``."""
-        return self.model.predict_columns(c, phi)
+        return self.adapter.predict_columns(c, phi)
 
     def stick_shortfall(self, c: dict, phi: Phi) -> torch.Tensor | None:
         """How far (m/s) a row the model holds stuck is from slipping (None for a kind without
         a stick state)."""
-        return self.model.stick_shortfall(c, phi)
+        return self.adapter.stick_shortfall(c, phi)
 
     def predict_with_shortfall(self, c: dict, phi: Phi, shortfall: bool):
         """(:meth:`predict`, :meth:`stick_shortfall` if ``shortfall`` else None) in one go."""
-        return self.model.predict_with_shortfall(c, phi, shortfall)
+        return self.adapter.predict_with_shortfall(c, phi, shortfall)
 
 
 class ReplayBuffer:
@@ -336,7 +338,7 @@ class OnlineInference:
         if missing:
             raise InputError(f"no initial value for {', '.join(missing)} (InferenceConfig.initial)")
         self.predictor = Predictor(self.model)
-        self.native = native.predictor(model.capabilities) if config.engine != "torch" else None
+        self.native = native.predictor(capabilities(model)) if config.engine != "torch" else None
         if config.engine == "native" and self.native is None:
             raise InputError(f"the native inference needs a model with the 'compiled_mpc' or 'compiled_mpc_memory' "
                              f"capability and a C compiler (model: {model.kind!r})")

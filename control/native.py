@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from deapull.control import mpc
+from deapull.control.adapters import capabilities
 from deapull.control.dynamics import U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics
 from deapull.surrogate import native as surrogate_native
 
@@ -103,14 +104,14 @@ def memory_library() -> ctypes.CDLL | None:
 def available(model=None) -> bool:
     """True when the library compiles and ``model`` (if given) is one it runs (f-coulomb, or
     f-memory: :class:`NativeMemoryDynamics`)."""
-    if model is not None and model.can("compiled_mpc_memory"):
+    if model is not None and "compiled_mpc_memory" in capabilities(model):
         return memory_library() is not None
-    return (model is None or model.can("compiled_mpc")) and library() is not None
+    return (model is None or "compiled_mpc" in capabilities(model)) and library() is not None
 
 
 def native_dynamics(model, phi, dt: float, dv_max_V: float, v_max_V: float) -> "NativeCoinDynamics":
     """The compiled twin of ``CoinDynamics(model, ...)`` for the kind of ``model``."""
-    cls = NativeMemoryDynamics if model.can("compiled_mpc_memory") else NativeCoinDynamics
+    cls = NativeMemoryDynamics if "compiled_mpc_memory" in capabilities(model) else NativeCoinDynamics
     return cls(model, phi, dt, dv_max_V, v_max_V)
 
 
@@ -223,7 +224,7 @@ class NativeCoinDynamics(_NativeDynamics):
 
     def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
-        if not self.model.can("compiled_mpc") or library() is None:
+        if "compiled_mpc" not in capabilities(self.model) or library() is None:
             raise RuntimeError("the native coin MPC runs f-coulomb and f-patch models where a C compiler is available")
         rest = self._load_pieces()
         p = self._pieces
@@ -251,7 +252,7 @@ class NativeMemoryDynamics(_NativeDynamics):
 
     def __init__(self, model, phi, dt: float, dv_max_V: float, v_max_V: float):
         super().__init__(model, phi, dt, dv_max_V, v_max_V)
-        if not self.model.can("compiled_mpc_memory") or memory_library() is None or self.n != self.n_state:
+        if "compiled_mpc_memory" not in capabilities(self.model) or memory_library() is None or self.n != self.n_state:
             raise RuntimeError("the native memory MPC runs f-memory models where a C compiler is available")
         from deapull.surrogate.models.memory import COMPLIANCE_SCALE
         rest = self._load_pieces()
@@ -317,13 +318,13 @@ def _predict(fn, rows: list, phys: np.ndarray, derivatives: bool):
     return as_t(pred), as_t(dpred), as_t(short), as_t(dshort)
 
 
-def predictor(capabilities):
-    """The compiled prediction of the online inference for a kind with ``capabilities``
+def predictor(offered):
+    """The compiled prediction of the online inference for a kind that offers the capabilities ``offered``
     (:func:`coin_predict` or :func:`memory_predict`), or None where the kind has none or no C
     compiler is at hand (``deapull control --set mpc.inference.engine=native`` checks this before loading)."""
-    if "compiled_mpc_memory" in capabilities:
+    if "compiled_mpc_memory" in offered:
         return memory_predict if memory_library() is not None else None
-    if "compiled_mpc" in capabilities:
+    if "compiled_mpc" in offered:
         return coin_predict if library() is not None else None
     return None
 
@@ -343,7 +344,7 @@ def memory_predict(model, columns: dict, phi: dict, derivatives: bool = True):
 def memory_scan(model, columns: dict, phi: dict) -> torch.Tensor:
     """The memory (P, T) after each of consecutive rows, the first starting from its own
     ``memory`` entry and each next one from the row before's result (n, 2): the scan of
-    :meth:`~deapull.surrogate.models.memory.TipMemoryModel.memory_along`, in C."""
+    :meth:`~deapull.control.adapters.TipMemoryAdapter.memory_along`, in C."""
     lib = memory_library()
     s, a = columns["s"], columns["a"]
     rows = [_np(s[:, 1]), _np(a[:, 1]), *(_np(columns[k]) for k in ("stroke", "compliance", "fy0", "b"))]

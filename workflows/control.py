@@ -227,16 +227,16 @@ def _require_inference(folder: Path, engine: str = "auto") -> None:
     """The MPC infers φ online with its own f_a: refuse a kind that cannot before any
     model is loaded, naming the options that plan with a given φ instead; with
     ``mpc.inference.engine = "native"``, refuse a kind without a compiled inference (or no C compiler)."""
-    from deapull.control import native
+    from deapull.control import adapters, native
     from deapull.surrogate import store
     from deapull.surrogate.models import registry
     kind = store.kind_of(folder)
     cls = registry.KINDS.get(kind)
-    if cls is not None and "infer" not in cls.capabilities:
+    if cls is not None and "infer" not in adapters.capabilities(cls):
         raise InputError(f"--mpc-model {str(folder)!r}: its kind {kind!r} cannot infer φ online (capability "
                          f"'infer'); plan with a given φ: --set control.mpc_phi=prior --phi-prior coins (the "
                          f"prior's median) or --set control.mpc_phi=oracle (the plant's true φ)")
-    if engine == "native" and cls is not None and native.predictor(cls.capabilities) is None:
+    if engine == "native" and cls is not None and native.predictor(adapters.capabilities(cls)) is None:
         raise InputError(f"mpc.inference.engine = 'native': the kind {kind!r} of --mpc-model {str(folder)!r} has no compiled "
                          f"inference here (f-coulomb and f-memory have one where a C compiler is at hand and "
                          f"DEAPULL_NATIVE is not 0); use engine auto or torch")

@@ -128,14 +128,6 @@ def mlp_params(net: nn.Sequential) -> tuple[int, np.ndarray, np.ndarray]:
     return len(linears), sizes, np.ascontiguousarray(flat, dtype=np.float32)
 
 
-#: what a model kind may offer the control stage: ``plan`` (:meth:`Surrogate.plan_step`),
-#: ``infer`` (φ from buffered transitions: :meth:`Surrogate.inference_columns`, ``predict_columns``,
-#: ``stick_shortfall``) and ``compiled_mpc`` (control/native.py runs its step, Jacobians and iLQR in C:
-#: the tip-contact law with a piecewise-affine material network) and ``compiled_mpc_memory`` (the same
-#: for the tip-memory law, its planning state carrying :attr:`Surrogate.plan_memory`)
-CAPABILITIES = ("plan", "infer", "compiled_mpc", "compiled_mpc_memory")
-
-
 class Surrogate(nn.Module):
     """Base class: the training data's normalisation and input range, as buffers.
 
@@ -157,64 +149,6 @@ class Surrogate(nn.Module):
     #: that needs more than one sits out the paper's sets (one training coin each)
     training_coins = 1
     window = 1
-    #: what the control stage may ask of this kind (:data:`CAPABILITIES`); control/ asks
-    #: :meth:`can`, never a kind's name
-    capabilities: frozenset = frozenset()
-
-    def can(self, capability: str) -> bool:
-        """Whether this kind offers ``capability`` (one of :data:`CAPABILITIES`)."""
-        if capability not in CAPABILITIES:
-            raise ValueError(f"unknown capability {capability!r}; known: {', '.join(CAPABILITIES)}")
-        return capability in self.capabilities
-
-    def plan_step(self, s, a, v_prev, phi: Phi):
-        """``plan``: one step (s', z) for a planner, from the state, the action and the voltage
-        ``v_prev`` before the step (a kind without memory of it ignores it)."""
-        raise NotImplementedError(f"model kind {self.kind!r} cannot plan (capabilities: {sorted(self.capabilities)})")
-
-    #: ``plan`` with memory: the entries a planner must carry beside (x, u, V), as (name, unit)
-    #: pairs (the unit scales the entry in the planner's state); empty for a kind whose memory
-    #: is the voltage before the step alone (:meth:`plan_step`)
-    plan_memory: tuple = ()
-
-    def plan_start(self, V: torch.Tensor) -> torch.Tensor:
-        """``plan`` with memory: the memory entries (..., len(plan_memory)) of the DEA at rest at
-        the voltages ``V``, in SI units."""
-        raise NotImplementedError(f"model kind {self.kind!r} has no planning memory")
-
-    def plan_step_memory(self, s, a, v_prev, memory, phi: Phi):
-        """``plan`` with memory: one step (s', z, memory') from the state, the action, the voltage
-        before the step and the memory entries of :attr:`plan_memory` (SI units)."""
-        raise NotImplementedError(f"model kind {self.kind!r} has no planning memory")
-
-    def inference_columns(self, x_prev, x, V, V_next, dt, memory=None) -> dict:
-        """``infer``: what x̂_{t+1}(φ) of buffered transitions needs that does not depend on φ: a dict
-        of float64 columns with at least ``s`` = (x, u) and ``a`` = (V', Δt) (the inference reads
-        them), and whatever else the kind's :meth:`predict_columns` uses. A kind with memory
-        (:attr:`plan_memory`) takes each row's memory entries before the transition (n, k), SI
-        units, as ``memory`` (None: the DEA at rest at ``V``, :meth:`plan_start`) and keeps them
-        in the column ``memory``."""
-        raise NotImplementedError(f"model kind {self.kind!r} cannot infer φ")
-
-    def predict_with_shortfall(self, columns: dict, phi: Phi, shortfall: bool = True):
-        """``infer``: (:meth:`predict_columns`, :meth:`stick_shortfall` or None) together (a kind
-        whose step is a solve overrides it to solve once)."""
-        return self.predict_columns(columns, phi), (self.stick_shortfall(columns, phi) if shortfall else None)
-
-    def memory_after(self, columns: dict, phi: Phi) -> torch.Tensor:
-        """``infer`` with memory: the memory entries (n, k) after each row's transition for the
-        coin ``phi``, without gradients (what the next transition starts from)."""
-        raise NotImplementedError(f"model kind {self.kind!r} has no memory to track")
-
-    def predict_columns(self, columns: dict, phi: Phi):
-        """``infer``: x̂_{t+1} of :meth:`inference_columns`' rows for the coin ``phi``."""
-        raise NotImplementedError(f"model kind {self.kind!r} cannot infer φ")
-
-    def stick_shortfall(self, columns: dict, phi: Phi):
-        """``infer``: how far (m/s) each row the model holds stuck is from slipping, or None when
-        the kind has no stick state."""
-        return None
-
     def __init__(self, norm: Normalisation, input_range: InputRange, hparams: dict):
         super().__init__()
         self.norm, self.input_range, self.hparams = norm, input_range, dict(hparams)

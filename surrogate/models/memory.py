@@ -224,7 +224,7 @@ class TipMemoryModel(TipFriction, Surrogate):
         first call (memory None); a given memory is used as is."""
         return None
 
-    def _start(self, V0: torch.Tensor) -> torch.Tensor:
+    def rest_memory(self, V0: torch.Tensor) -> torch.Tensor:
         """Memory of the DEA at rest at ``V0`` without friction (P = X(V0), T = 0)."""
         stroke, _, _, _ = self.material_response(V0)
         return torch.stack([V0, stroke.to(V0.dtype), torch.zeros_like(V0)], dim=-1)
@@ -266,95 +266,9 @@ class TipMemoryModel(TipFriction, Surrogate):
             # the voltage before it is that of the run's first point, which the action does not
             # carry; rollouts from 0 V (every FEM run but the release) and from V_max
             # (release) both start at a[0] within the first step's change
-            memory = self._start(a[..., 0])
+            memory = self.rest_memory(a[..., 0])
         s_next, z, memory = self.dynamics(s, a, memory, phi)
         return s_next.to(s.dtype), z.to(s.dtype), memory.to(s.dtype)
-
-    #: the planner's state carries the tip's state beside (x, u, V): the contact point P (m)
-    #: and the friction T (N) of the previous step (V is the planner's own voltage); online
-    #: inference carries the same two along its buffer (:meth:`inference_columns`)
-    capabilities = frozenset({"plan", "infer", "compiled_mpc_memory"})
-    plan_memory = (("P", 1e-3), ("T", 1e-2))
-
-    def plan_start(self, V: torch.Tensor) -> torch.Tensor:
-        """(P, T) of the DEA at rest at ``V`` without friction: P = X(V), T = 0 (as :meth:`step`'s
-        first call)."""
-        return self._start(V)[..., 1:]
-
-    def plan_step(self, s, a, v_prev, phi: Phi):
-        raise NotImplementedError("f-memory plans with its memory: plan_step_memory (plan_memory)")
-
-    def plan_step_memory(self, s, a, v_prev, memory, phi: Phi):
-        """One step (s', z, (P', T')) from (x, u), (V', Δt), V and (P, T); differentiable in all
-        of them (implicit gradients of the step's root, :func:`tip_memory_step`)."""
-        full = torch.cat([v_prev.unsqueeze(-1), memory], dim=-1)
-        s_next, z, full_next = self.dynamics(s, a, full, phi)
-        return s_next, z, full_next[..., 1:]
-
-    # --- online inference (``infer``) -----------------------------------------------------
-    # A transition's prediction needs the tip's (P, T) before it, which depends on φ through
-    # the whole history. The inference (deapull.control.inference) carries them along its
-    # buffer by this model's own step from the observed state under its current estimate of φ
-    # (as the MPC policy tracks them), and re-derives them along the whole buffer as the
-    # estimate moves; each update then fits φ through one step per row with (P, T) given.
-
-    def inference_columns(self, x_prev, x, V, V_next, dt, memory=None) -> dict:
-        s, a = torch.stack([x, (x - x_prev) / dt], -1), torch.stack([V_next, dt], -1)
-        with torch.no_grad():
-            if memory is None:
-                memory = self.plan_start(V.to(self.in_mean.dtype))
-            stroke, fy0, compliance, b = self.material_response(V_next.to(self.in_mean.dtype))
-        columns = {"s": s, "a": a, "memory": memory, "stroke": stroke, "fy0": fy0, "compliance": compliance, "b": b}
-        return {k: v.double() for k, v in columns.items()}
-
-    def _columns_step(self, c: dict, phi: Phi):
-        phi = self._phi(phi, c["s"], torch.float64)
-        return tip_memory_step(c["s"][..., 1], c["memory"][..., 0], c["stroke"], c["compliance"], c["fy0"], c["b"],
-                               phi.mu_t, phi.mu_b, phi.mass_kg, c["a"][..., 1], self.gravity_m_s2,
-                               self.slip_rate_reg_m_s, self.iterations, c["memory"][..., 1])
-
-    def predict_columns(self, c: dict, phi: Phi):
-        return self.predict_with_shortfall(c, phi, shortfall=False)[0]
-
-    def stick_shortfall(self, c: dict, phi: Phi):
-        """(μ_b N − |R|)⁺ Δt/m_c at the step's tip friction T', with R = T' + m_c u/Δt the ground's
-        reaction needed to hold the coin; 0 where the model lets the coin slip."""
-        return self.predict_with_shortfall(c, phi)[1]
-
-    def predict_with_shortfall(self, c: dict, phi: Phi, shortfall: bool = True):
-        """Both from one solve of the step (the solve is the cost)."""
-        u_next, T, fy, _ = self._columns_step(c, phi)
-        dt = c["a"][..., 1]
-        x_next = c["s"][..., 0] + dt * u_next
-        if not shortfall:
-            return x_next, None
-        phi = self._phi(phi, c["s"], torch.float64)
-        cap = phi.mu_b * torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
-        reaction = T + phi.mass_kg / dt * c["s"][..., 1]
-        stuck = (u_next == 0).double()
-        return x_next, stuck * torch.relu(cap - reaction.abs()) * dt / phi.mass_kg
-
-    @torch.no_grad()
-    def memory_after(self, c: dict, phi: Phi) -> torch.Tensor:
-        _, T, _, P_next = self._columns_step(c, phi)
-        return torch.stack([P_next, T], dim=-1)
-
-    @torch.no_grad()
-    def memory_along(self, c: dict, phi: Phi) -> torch.Tensor:
-        """The memory before each row when the rows are consecutive transitions (a buffer):
-        row 0's as given, each next one :meth:`memory_after` the row before (Python floats,
-        :func:`tip_memory_step_scalar`: a sequential scan)."""
-        mass, mu_b, mu_t = (phi.value(f) for f in ("mass_kg", "mu_b", "mu_t"))
-        u, dt = c["s"][:, 1].tolist(), c["a"][:, 1].tolist()
-        cols = [c[k].tolist() for k in ("stroke", "compliance", "fy0", "b")]
-        out = c["memory"].clone()
-        P, T = (float(v) for v in out[0])
-        for i in range(out.shape[0] - 1):
-            _, T, _, P = tip_memory_step_scalar(u[i], P, cols[0][i], cols[1][i], cols[2][i], cols[3][i], mu_t, mu_b,
-                                                mass, dt[i], self.gravity_m_s2, self.slip_rate_reg_m_s,
-                                                self.iterations, T)
-            out[i + 1, 0], out[i + 1, 1] = P, T
-        return out
 
     def training_loss(self, batch: Transitions) -> torch.Tensor:
         """Eq. 3 with the memory from the data; the pressing force is compared as the FEM's

@@ -96,19 +96,6 @@ class PhysicsModel(Surrogate):
         z = self.forces(s, a)
         return self.dynamics(z, s, a, self._phi(phi, s, s.dtype)), z
 
-    capabilities = frozenset({"plan", "infer"})
-
-    def plan_step(self, s, a, v_prev, phi: Phi):
-        return self(s, a, phi)
-
-    def inference_columns(self, x_prev, x, V, V_next, dt) -> dict:
-        s, a = torch.stack([x, (x - x_prev) / dt], -1), torch.stack([V_next, dt], -1)
-        with torch.no_grad():
-            return {"s": s.double(), "a": a.double(), "z": self.forces(s, a).double()}
-
-    def predict_columns(self, c: dict, phi: Phi):
-        return self.dynamics(c["z"], c["s"], c["a"], phi)[..., 0]
-
     def step(self, s, a, memory=None, phi: Phi | None = None):
         s_next, z = self(s, a, phi)
         return s_next, z, None

@@ -316,35 +316,6 @@ class TipContactModel(TipFriction, Surrogate):
                                   None if spread is None else spread[..., 1])
         return s_next.to(s.dtype), z.to(s.dtype)
 
-    capabilities = frozenset({"plan", "infer", "compiled_mpc"})
-
-    def plan_step(self, s, a, v_prev, phi: Phi):
-        return self(s, a, v_prev, phi)
-
-    def inference_columns(self, x_prev, x, V, V_next, dt) -> dict:
-        s, a = torch.stack([x, (x - x_prev) / dt], -1), torch.stack([V_next, dt], -1)
-        with torch.no_grad():
-            stroke, fy, spread = self.material_all(torch.stack([V, V_next], -1))
-        columns = {"s": s, "a": a, "stroke_prev": stroke[..., 0], "stroke": stroke[..., 1], "fy": fy[..., 1]}
-        if spread is not None:
-            columns["spread"] = spread[..., 1]
-        return {k: v.double() for k, v in columns.items()}
-
-    def predict_columns(self, c: dict, phi: Phi):
-        return self.dynamics(c["s"], c["a"], c["stroke_prev"], c["stroke"], c["fy"], phi, c.get("spread"))[0][..., 0]
-
-    def stick_shortfall(self, c: dict, phi: Phi):
-        """(cap_b − |R|)⁺ Δt/m_c, with R the ground's reaction needed to hold the coin and cap_b =
-        μ_b N its Coulomb limit; 0 where the model lets the coin slip."""
-        grip, spread = self.patch_at(c["s"][..., 0], c["stroke_prev"], c.get("spread"))
-        phi = self._phi(phi, c["s"], torch.float64)
-        dt, fy = c["a"][..., 1], c["fy"]
-        w = (c["stroke"] - c["stroke_prev"]) / dt
-        cap_t = phi.mu_t * torch.clamp(fy, min=0.0) * grip
-        cap_b = phi.mu_b * torch.clamp(phi.mass_kg * self.gravity_m_s2 + fy, min=0.0)
-        reaction = cap_t * regularised_slip(w, self.slip_eps(w, spread)) + phi.mass_kg / dt * c["s"][..., 1]
-        return torch.relu(cap_b - reaction.abs()) * dt / phi.mass_kg
-
     def step(self, s, a, memory=None, phi: Phi | None = None):
         if memory is None:
             memory = self.init_memory(s, a)
@@ -423,13 +394,11 @@ class TipPatchLagModel(TipPatchModel):
     coins identify them (f_a: C3..C7); on one coin's ramp ℓ follows V, and m absorbs them.
 
     No compiled path: the compiled MPC and inference would need ℓ's terms in x. It plans and
-    infers on the torch path (capabilities ``plan`` and ``infer``).
+    infers on the torch path (:class:`deapull.control.adapters.TipPatchLagAdapter`).
     """
 
     kind = "f-patch-lag"
     label = "f (tip patch, lag)"
-    capabilities = frozenset({"plan", "infer"})
-
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         # in m's dtype: rollouts take theirs from the first parameter

@@ -1,6 +1,7 @@
-"""control/ asks a model what it can do, never its kind's name: a new kind registered here, in
-the test, plans through the MPC and is inferred online without a line of control/ changing;
-a kind that lacks a capability is refused naming it."""
+"""control/ reaches a model through the adapter registered for its class, never by its kind's
+name: a new kind and its adapter, registered here in the test, plan through the MPC and are
+inferred online without a line of control/ changing; a kind that lacks a capability is refused
+naming it, and the model class itself carries no control hook."""
 from __future__ import annotations
 
 import pytest
@@ -9,7 +10,7 @@ import torch
 from deapull.control.dynamics import CoinDynamics, coin_cost
 from deapull.control.inference import InferenceConfig, OnlineInference
 from deapull.control.mpc_policy import make_dynamics
-from deapull.control import mpc
+from deapull.control import adapters, mpc
 from deapull.errors import InputError
 from deapull.surrogate.models import registry
 from deapull.surrogate.models.base import InputRange, Normalisation, Surrogate
@@ -25,25 +26,34 @@ class Viscous(Surrogate):
     label = "toy"
     physics = True
     phi_fields = ("mass_kg", "mu_b")
-    capabilities = frozenset({"plan", "infer"})
     gain = 1e-6
 
-    def plan_step(self, s, a, v_prev, phi):
+    def forward(self, s, a, v_prev, phi):
         phi = phi.to(dtype=s.dtype)
         u = self.gain * torch.relu(a[..., 0] - v_prev) / (phi.mass_kg * phi.mu_b)
         return torch.stack([s[..., 0] + a[..., 1] * u, u], -1), None
 
-    def inference_columns(self, x_prev, x, V, V_next, dt):
+
+class ViscousAdapter(adapters.Adapter):
+    """What control/ asks of the toy: its step, and the push that x̂_{t+1}(φ) needs."""
+    capabilities = frozenset({"plan", "infer"})
+
+    def plan_step(self, s, a, v_prev, phi):
+        return self.model(s, a, v_prev, phi)
+
+    def inference_columns(self, x_prev, x, V, V_next, dt, memory=None):
         s, a = torch.stack([x, (x - x_prev) / dt], -1), torch.stack([V_next, dt], -1)
         return {"s": s.double(), "a": a.double(), "push": torch.relu(V_next - V).double()}
 
     def predict_columns(self, c, phi):
-        return c["s"][..., 0] + c["a"][..., 1] * self.gain * c["push"] / (phi.mass_kg * phi.mu_b)
+        m = self.model
+        return c["s"][..., 0] + c["a"][..., 1] * m.gain * c["push"] / (phi.mass_kg * phi.mu_b)
 
 
 @pytest.fixture
 def toy(monkeypatch):
-    monkeypatch.setitem(registry.KINDS, Viscous.kind, Viscous)      # the registry is all a kind touches
+    monkeypatch.setitem(registry.KINDS, Viscous.kind, Viscous)      # the registry and the adapter are all
+    monkeypatch.setitem(adapters.ADAPTERS, Viscous, ViscousAdapter)  # a kind touches
     norm = Normalisation.__new__(Normalisation)
     model = Viscous.__new__(Viscous)
     torch.nn.Module.__init__(model)
@@ -73,8 +83,8 @@ def test_a_new_kind_is_inferred_online_by_its_capabilities(toy):
     inf.observe(x, V)
     for k in range(200):
         V_next = V + (5.0 if k % 3 else 0.0)
-        x = float(toy.plan_step(torch.tensor([[x, 0.0]], dtype=F64), torch.tensor([[V_next, 1e-3]], dtype=F64),
-                                torch.tensor([V], dtype=F64), truth)[0][0, 0])
+        x = float(toy(torch.tensor([[x, 0.0]], dtype=F64), torch.tensor([[V_next, 1e-3]], dtype=F64),
+                      torch.tensor([V], dtype=F64), truth)[0][0, 0])
         V = V_next
         inf.observe(x, V)
         inf.update()
@@ -82,8 +92,21 @@ def test_a_new_kind_is_inferred_online_by_its_capabilities(toy):
 
 
 def test_a_kind_without_a_capability_is_refused_naming_it(toy, monkeypatch):
-    monkeypatch.setattr(Viscous, "capabilities", frozenset())
+    monkeypatch.setattr(ViscousAdapter, "capabilities", frozenset())
     with pytest.raises(InputError, match="capability 'plan'"):
         CoinDynamics(toy, Phi(mass_kg=1e-3, mu_b=0.2), 1e-3, 5.0, 400.0)
     with pytest.raises(InputError, match="capability 'infer'"):
         OnlineInference(toy, InferenceConfig(initial={"mass_kg": 1e-3, "mu_b": 0.2}), dt=1e-3)
+
+
+def test_the_models_carry_no_control_hooks():
+    """Planning and inference live in control/adapters.py: no registered kind defines them."""
+    from deapull.surrogate.models import registry as kinds
+    hooks = ("plan_step", "plan_start", "plan_step_memory", "inference_columns", "predict_columns",
+             "stick_shortfall", "predict_with_shortfall", "memory_after", "memory_along", "capabilities", "can")
+    for kind, cls in kinds.KINDS.items():
+        assert not [h for h in hooks if hasattr(cls, h)], kind
+    assert {kind: sorted(adapters.capabilities(cls)) for kind, cls in kinds.KINDS.items()} == {
+        "f": ["infer", "plan"], "f-coulomb": ["compiled_mpc", "infer", "plan"],
+        "f-patch": ["compiled_mpc", "infer", "plan"], "f-patch-lag": ["infer", "plan"],
+        "f-memory": ["compiled_mpc_memory", "infer", "plan"], "nn": [], "lstm": []}

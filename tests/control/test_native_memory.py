@@ -1,7 +1,7 @@
 """The MPC on an f-memory f_a (issue 24): the planning state ξ = (x, u, V, P, T) carries the
 tip's memory, and the compiled step, Jacobians and iLQR (``native_mpc_memory.c``,
 :class:`~deapull.control.native.NativeMemoryDynamics`) give the torch path's
-(:class:`~deapull.control.dynamics.CoinDynamics` on ``TipMemoryModel.plan_step_memory``,
+(:class:`~deapull.control.dynamics.CoinDynamics` on ``TipMemoryAdapter.plan_step_memory``,
 implicit gradients by autograd) to round-off.
 
 Broken three times to watch them fail (then restored). (1) The sign of ∂T'/∂P flipped in the C
@@ -22,6 +22,7 @@ import pytest
 import torch
 
 from deapull.control import mpc, native
+from deapull.control.adapters import adapter
 from tests.control.jacobian_check import assert_jacobians_match_central_differences, assert_plans_match_torch
 
 F64 = torch.float64
@@ -69,7 +70,7 @@ def test_the_planning_state_carries_the_memory(pair):
     nu = torch.ones(1, 80, 1, dtype=F64)
     with torch.no_grad():
         path = mpc.rollout(slow, x0, nu)[0]
-        s, memory = torch.zeros(1, 2, dtype=F64), model._start(torch.zeros(1, dtype=F64))   # at rest at 0 V
+        s, memory = torch.zeros(1, 2, dtype=F64), model.rest_memory(torch.zeros(1, dtype=F64))   # at rest at 0 V
         for t in range(80):
             a = torch.tensor([[DV_MAX * (t + 1), DT]], dtype=F64)
             s, z, memory = model.step(s, a, memory, slow.phi)
@@ -135,7 +136,7 @@ def _memory_episode(model, engine: str, steps: int = 150):
     obs, info = env.reset(seed=0)
     zero = torch.zeros(1, dtype=F64)
     with torch.no_grad():                    # the DEA at rest at 0 V, as the policy starts it
-        plant._memory = torch.cat([zero.unsqueeze(0), plant.model.plan_start(zero)], -1)
+        plant._memory = torch.cat([zero.unsqueeze(0), adapter(plant.model).plan_start(zero)], -1)
     policy.reset(env.task_spec())
     tracked, truth_memory, actions = [], [], []
     for _ in range(steps):
