@@ -188,7 +188,7 @@ def control_config(args):
         max_steps=args.max_steps, hold_steps=args.hold, target_m=1e-3 * args.target_mm,
         setpoints_m=None if args.setpoints_mm is None else parse_setpoints(args.setpoints_mm), data=Path(args.data),
         plant_model=args.plant_model, mpc_model=args.mpc_model, mpc_phi=args.mpc_phi, phi_prior=args.phi_prior,
-        mpc=mpc_config(getattr(args, "mpc_table", {})), unreachable=args.unreachable,
+        mpc=mpc_config(getattr(args, "mpc_table", {})), unreachable=args.unreachable, reach_fraction=args.reach_fraction,
         plant_phi=control.parse_plant_phi(args.plant_phi),
         sac_dir=args.sac_dir, sac_steps=args.sac_steps,
         scene=args.scene, overrides=overrides_of(args), progress=not args.no_progress,
@@ -248,6 +248,9 @@ def register(sub) -> None:
                    help="surrogate plant model folder; {setup} -> C1, {n} -> 1 (default out/models/fs{n})")
     p.add_argument("--mpc-model", default="out/models/fa",
                    help="the MPC's model f_a, f-coulomb or f trained on C3..C8 (default out/models/fa)")
+    p.add_argument("--reach-fraction", type=float, default=None,
+                   help="FEM plants: each plant's target is this fraction of its own ramp travel (the --data "
+                        "dataset's), in place of --target-mm (0.8: a target within every plant's reach)")
     p.add_argument("--unreachable", default="refuse", choices=("refuse", "report"),
                    help="a plant that cannot take the coin to the task (FEM: its dataset's ramp; surrogate: the "
                         "fastest push): refuse the run (exit 2, default) or report it as unreachable in the "

@@ -127,6 +127,9 @@ class ControlConfig:
     #: a plant that cannot reach the task: "refuse" the run (exit 2) or "report" it as an
     #: unreachable row and run the other plants
     unreachable: str = "refuse"
+    #: FEM plants: the target is this fraction of each plant's ramp travel (its dataset's), in
+    #: place of ``target_m`` (:func:`plant_targets`)
+    reach_fraction: float | None = None
 
     @property
     def task(self) -> tuple:
@@ -194,6 +197,17 @@ def check(config: ControlConfig) -> dict:
             raise InputError(f"{name} {value!r}: must be an integer >= {low}")
     if not (math.isfinite(config.dv_max_V) and config.dv_max_V > 0):
         raise InputError(f"--dv-max {config.dv_max_V!r}: must be a finite number > 0 (V per step)")
+    if config.reach_fraction is not None:
+        if not (math.isfinite(config.reach_fraction) and 0 < config.reach_fraction <= 1):
+            raise InputError(f"--reach-fraction {config.reach_fraction!r}: must be a number in (0, 1] (a share of "
+                             "each FEM plant's ramp travel)")
+        if any(p.kind != "fem" for p in config.plants):
+            raise InputError("--reach-fraction sets one target per FEM plant: it takes FEM plants only")
+        missing = [str(config.data / f"{p.setup}.nc") for p in config.plants
+                   if not (config.data / f"{p.setup}.nc").is_file()]
+        if missing:
+            raise InputError(f"--reach-fraction {config.reach_fraction!r} reads each plant's ramp travel from its "
+                             f"dataset: missing {', '.join(missing)} (make sweep)")
     if not (math.isfinite(config.target_m) and config.target_m < 0):
         raise InputError(f"--target-mm {1e3 * config.target_m!r}: must be a finite number < 0 (the coin moves "
                          "toward -x)")
@@ -254,11 +268,12 @@ def check_fem(config: ControlConfig) -> dict:
     if importlib.util.find_spec("dolfinx") is None:
         raise InputError("--plant fem:...: the FEM plant needs dolfinx (FEniCSx), which is not installed")
     task = task_of(config)
+    targets = plant_targets(config)
     other_coin = any(o.split("=")[0].strip().startswith("coin.") for o in config.overrides)
     scenes.load(config.scene, setup=config.plants[0].setup, overrides=config.overrides)
     unreachable = {}
     for spec in config.plants:
-        if spec.kind != "fem":
+        if spec.kind != "fem" or spec.setup in targets:
             continue
         path = config.data / f"{spec.setup}.nc"
         if other_coin:
@@ -335,6 +350,15 @@ def check_inference(config: ControlConfig) -> None:
                          f"{', '.join(PLANT_PHI_FIELDS)} (the rest stay at the prior's median)")
 
 
+def plant_targets(config: ControlConfig) -> dict:
+    """``reach_fraction``: each FEM plant's target, that share of its dataset's ramp travel (m), by
+    setup ({} without it, or with ``setpoints_m``, which win: every plant takes the task)."""
+    if config.reach_fraction is None or config.setpoints_m:
+        return {}
+    return {p.setup: config.reach_fraction * float(np.min(load_setup(config.data / f"{p.setup}.nc").x))
+            for p in config.plants}
+
+
 def task_of(config: ControlConfig) -> Task:
     """What every episode of ``config`` asks: its setpoints, tolerance, |ΔV| limit and steps."""
     return Task(config.target_m, config.task, config.tolerance_m, config.dv_max_V, config.max_steps,
@@ -398,6 +422,7 @@ def run(config: ControlConfig) -> list[Episode]:
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(config).items()}
     write_json(config.out / "run.json", {"config": settings, "git_commit": provenance.git_commit(),
                                          **provenance.package_versions(packages)}, indent=2)
+    targets = plant_targets(config)
     total = len(config.plants) * len(config.policies) * len(config.noises) * config.episodes
     episodes: list[Episode] = []
     left_out = [unreachable_row(config, spec, name, noise, unreachable[spec.name]) for spec in config.plants
@@ -406,14 +431,17 @@ def run(config: ControlConfig) -> list[Episode]:
         bar.update(len(left_out) * config.episodes)
         for spec in (s for s in config.plants if s.name not in unreachable):
             plant = bench.plant(spec)
+            plant_task = task
+            if spec.setup in targets:
+                plant_task = replace(task, target_m=targets[spec.setup], setpoints_m=(targets[spec.setup],))
             for name in config.policies:
                 policy = bench.policy(name, spec.setup, plant)
                 for noise in config.noises:
-                    env = task.env(plant, noise)
+                    env = plant_task.env(plant, noise)
                     for i in range(config.episodes):
                         bar.set_description(f"{name} on {spec.name}, noise {noise:g} m")
                         ep = run_episode(env, policy, config.seed + i, task.step_limit, task.hold_steps, bar,
-                                         setpoints_m=task.setpoints_m)
+                                         setpoints_m=plant_task.setpoints_m)
                         ep.row.update(setup=spec.setup, episode=i)
                         if config.save_fem_runs is not None and spec.kind == "fem" and len(plant.records) > 1:
                             stem = fem_run_name(spec.setup, config.run_tag, name, noise, i)

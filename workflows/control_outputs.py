@@ -42,7 +42,8 @@ def plot_all(out: Path, episodes, target_m: float, tolerance_m: float) -> None:
                 lo, hi = np.percentile(values, [25, 75], axis=0)
                 ax.fill_between(t, lo, hi, alpha=0.25)
             if what == "position":
-                target = 1e3 * target_m
+                first = next(iter(by_policy.values()))[0].row.get("setpoints_mm", "")
+                target = float(str(first).split(";")[0]) if first else 1e3 * target_m   # the plant's own
                 ax.axhline(target, color="k", lw=0.8, ls="--", label=f"x^T = {target:g} mm")
                 ax.axhspan(target - 1e3 * tolerance_m, target + 1e3 * tolerance_m, color="0.85")
             ax.set_xlabel("t [s]" if dt else "iteration (Δt = 1 ms)")

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -39,6 +41,8 @@ def base(tmp_path, sweep_dir, fs1_dir):
     (["--target-mm", "1"], "--target-mm 1"),
     (["--max-steps", "-3"], "--max-steps -3"),
     (["--threads", "0"], "--threads 0"),
+    (["--reach-fraction", "1.5"], "--reach-fraction 1.5"),
+    (["--reach-fraction", "0.8"], "--reach-fraction sets one target per FEM plant: it takes FEM plants only"),
 ])
 def test_bad_arguments_exit_2_with_one_line_naming_them_before_any_work(base, tmp_path, capsys, change, named):
     argv = [*base, "--policy", "pd"] + [c.replace("{tmp}", str(tmp_path)) for c in change]
@@ -145,6 +149,19 @@ def test_control_on_the_fem_plant_of_a_tiny_mesh(tmp_path):
     assert row["plant"] == "fem:C1" and row["status"] == "ok" and row["steps_run"] == "5"
     assert float(row["final_V_V"]) == pytest.approx(2.5) and float(row["true_mass_kg"]) > 1e-3
     assert (out / "fem" / "C1" / "mesh").is_dir()
+
+
+def test_reach_fraction_gives_each_fem_plant_its_share_of_its_own_ramp_travel(sweep_dir):
+    """--reach-fraction 0.8 (G5's task): fem:C1 and fem:C5 each aim at 0.8 of their dataset's
+    travel, so the fixture's slower coin C5 gets a nearer target; setpoints win over it."""
+    from deapull.surrogate.data import load_setup
+    from deapull.workflows import control as workflow
+    config = workflow.ControlConfig(policies=["heur"], plants=workflow.parse_plants("fem:C1,fem:C5"), noises=[0.0],
+                                    out=Path("unused"), data=Path(sweep_dir), reach_fraction=0.8)
+    targets = workflow.plant_targets(config)
+    for setup in ("C1", "C5"):
+        assert targets[setup] == pytest.approx(0.8 * float(load_setup(Path(sweep_dir) / f"{setup}.nc").x.min()))
+    assert targets["C5"] > targets["C1"] and workflow.plant_targets(replace(config, setpoints_m=[-4e-4])) == {}
 
 
 def test_a_target_beyond_the_plants_reach_exits_2_and_is_never_moved(base, tmp_path, capsys):
@@ -320,7 +337,7 @@ def test_a_preset_sets_the_options_that_flags_and_set_control_override(tmp_path)
     assert mpc_config(_parsed("--preset", "surrogate", "--out", str(tmp_path)).mpc_table).standoff_stds == 2.0
     fem = _parsed("--preset", "fem", "--out", str(tmp_path))
     fem_mpc = mpc_config(fem.mpc_table)
-    assert fem.plant.count("fem:") == 8 and fem_mpc.rate_V == 0.4 and fem.unreachable == "report"
+    assert fem.plant.count("fem:") == 8 and fem_mpc.rate_V == 0.4 and fem.reach_fraction == 0.8
     assert fem.mpc_phi == "prior" and fem_mpc.estimator.innovation_window == 25
 
 
