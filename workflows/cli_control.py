@@ -250,7 +250,8 @@ def register(sub) -> None:
                    help="the MPC's model f_a, f-coulomb or f trained on C3..C8 (default out/models/fa)")
     p.add_argument("--reach-fraction", type=float, default=None,
                    help="FEM plants: each plant's target is this fraction of its own ramp travel (the --data "
-                        "dataset's), in place of --target-mm (0.8: a target within every plant's reach)")
+                        "dataset's), in place of --target-mm, which the other plants keep (0.8: a target within "
+                        "every FEM plant's reach)")
     p.add_argument("--unreachable", default="refuse", choices=("refuse", "report"),
                    help="a plant that cannot take the coin to the task (FEM: its dataset's ramp; surrogate: the "
                         "fastest push): refuse the run (exit 2, default) or report it as unreachable in the "

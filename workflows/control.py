@@ -128,7 +128,7 @@ class ControlConfig:
     #: unreachable row and run the other plants
     unreachable: str = "refuse"
     #: FEM plants: the target is this fraction of each plant's ramp travel (its dataset's), in
-    #: place of ``target_m`` (:func:`plant_targets`)
+    #: place of ``target_m``; other plants keep ``target_m`` (:func:`plant_targets`)
     reach_fraction: float | None = None
 
     @property
@@ -201,10 +201,8 @@ def check(config: ControlConfig) -> dict:
         if not (math.isfinite(config.reach_fraction) and 0 < config.reach_fraction <= 1):
             raise InputError(f"--reach-fraction {config.reach_fraction!r}: must be a number in (0, 1] (a share of "
                              "each FEM plant's ramp travel)")
-        if any(p.kind != "fem" for p in config.plants):
-            raise InputError("--reach-fraction sets one target per FEM plant: it takes FEM plants only")
         missing = [str(config.data / f"{p.setup}.nc") for p in config.plants
-                   if not (config.data / f"{p.setup}.nc").is_file()]
+                   if p.kind == "fem" and not (config.data / f"{p.setup}.nc").is_file()]
         if missing:
             raise InputError(f"--reach-fraction {config.reach_fraction!r} reads each plant's ramp travel from its "
                              f"dataset: missing {', '.join(missing)} (make sweep)")
@@ -352,11 +350,11 @@ def check_inference(config: ControlConfig) -> None:
 
 def plant_targets(config: ControlConfig) -> dict:
     """``reach_fraction``: each FEM plant's target, that share of its dataset's ramp travel (m), by
-    setup ({} without it, or with ``setpoints_m``, which win: every plant takes the task)."""
+    setup; the other plants take ``target_m`` ({} without it, or with ``setpoints_m``, which win)."""
     if config.reach_fraction is None or config.setpoints_m:
         return {}
     return {p.setup: config.reach_fraction * float(np.min(load_setup(config.data / f"{p.setup}.nc").x))
-            for p in config.plants}
+            for p in config.plants if p.kind == "fem"}
 
 
 def task_of(config: ControlConfig) -> Task:

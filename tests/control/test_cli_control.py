@@ -42,7 +42,6 @@ def base(tmp_path, sweep_dir, fs1_dir):
     (["--max-steps", "-3"], "--max-steps -3"),
     (["--threads", "0"], "--threads 0"),
     (["--reach-fraction", "1.5"], "--reach-fraction 1.5"),
-    (["--reach-fraction", "0.8"], "--reach-fraction sets one target per FEM plant: it takes FEM plants only"),
 ])
 def test_bad_arguments_exit_2_with_one_line_naming_them_before_any_work(base, tmp_path, capsys, change, named):
     argv = [*base, "--policy", "pd"] + [c.replace("{tmp}", str(tmp_path)) for c in change]
@@ -153,15 +152,17 @@ def test_control_on_the_fem_plant_of_a_tiny_mesh(tmp_path):
 
 def test_reach_fraction_gives_each_fem_plant_its_share_of_its_own_ramp_travel(sweep_dir):
     """--reach-fraction 0.8 (G5's task): fem:C1 and fem:C5 each aim at 0.8 of their dataset's
-    travel, so the fixture's slower coin C5 gets a nearer target; setpoints win over it."""
+    travel, so the fixture's slower coin C5 gets a nearer target; a surrogate plant keeps the
+    target, and setpoints win over it."""
     from deapull.surrogate.data import load_setup
     from deapull.workflows import control as workflow
-    config = workflow.ControlConfig(policies=["heur"], plants=workflow.parse_plants("fem:C1,fem:C5"), noises=[0.0],
+    config = workflow.ControlConfig(policies=["heur"], plants=workflow.parse_plants("fem:C1,fem:C5,surrogate:C2"), noises=[0.0],
                                     out=Path("unused"), data=Path(sweep_dir), reach_fraction=0.8)
     targets = workflow.plant_targets(config)
     for setup in ("C1", "C5"):
         assert targets[setup] == pytest.approx(0.8 * float(load_setup(Path(sweep_dir) / f"{setup}.nc").x.min()))
-    assert targets["C5"] > targets["C1"] and workflow.plant_targets(replace(config, setpoints_m=[-4e-4])) == {}
+    assert targets["C5"] > targets["C1"] and "C2" not in targets        # a surrogate plant keeps --target-mm
+    assert workflow.plant_targets(replace(config, setpoints_m=[-4e-4])) == {}
 
 
 def test_a_target_beyond_the_plants_reach_exits_2_and_is_never_moved(base, tmp_path, capsys):
