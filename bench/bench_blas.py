@@ -11,12 +11,12 @@ Measured in this run, each in a child process:
 * **reference** — the same, with ``LD_LIBRARY_PATH`` set to the reference BLAS and LAPACK
   folders of ``libblas3`` / ``liblapack3``, which take precedence over the alternative.
 
-Each child meshes coin_pull C3 at ``--fidelity`` (default ``resolved``, the datasets'),
+Each child meshes coin_pull C3 at ``--fidelity`` (default: the scene file as written, the datasets'),
 assembles the Newton Jacobian at rest and times its numeric factorisation (the median of
 ``--repeats``, after a first factorisation that also does the symbolic analysis) with MUMPS
 and UMFPACK, and one back-solve. The child reports which BLAS library it loaded (from
 ``/proc/self/maps``), so a row never claims a library it did not use. ``--solve`` also runs the
-whole 1 s ramp of C3 under both (one after the other, ~3 + 5 min at resolved): the wall times,
+whole 1 s ramp of C3 under both (one after the other, minutes each at the data fidelity): the wall times,
 and the Newton iterations and travel, which must agree. Nothing is asserted: it prints and
 writes ``bench_blas.json``.
 """
@@ -133,7 +133,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/bench_blas")
     ap.add_argument("--fidelity", default="",
-                    help="a [fidelities.NAME] of coin_pull ('' = the file as written); default resolved")
+                    help="a [fidelities.NAME] of coin_pull (default '': the file as written, the datasets')")
     ap.add_argument("--repeats", type=int, default=5, help="numeric factorisations timed per package")
     ap.add_argument("--solve", action="store_true", help="also the whole C3 ramp under both BLAS")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
