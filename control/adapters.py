@@ -3,7 +3,7 @@
 A model kind (deapull.surrogate.models) knows its training and its rollout, nothing of
 control. The MPC's planner (:mod:`deapull.control.dynamics`), the online inference of φ
 (:mod:`deapull.control.inference`) and the compiled path (:mod:`deapull.control.native`)
-reach a model through :func:`adapter`, which wraps it in the adapter registered for its
+reach a model through :func:`adapter`, which wraps it in the adapter :data:`ADAPTERS` names for its
 class (the nearest in its class hierarchy; a class without one offers nothing).
 
 An adapter states its :data:`CAPABILITIES`:
@@ -17,7 +17,7 @@ An adapter states its :data:`CAPABILITIES`:
 * ``compiled_mpc`` / ``compiled_mpc_memory``: control/native.py runs the kind's step, its
   Jacobians and the iLQR in C (the tip-contact law, the tip-memory law).
 
-A new kind plans and is inferred online once :func:`register` gives its class an adapter;
+A new kind plans and is inferred online once :data:`ADAPTERS` gives its class an adapter;
 nothing else in control/ changes (tests/control/test_capabilities.py).
 """
 from __future__ import annotations
@@ -45,21 +45,10 @@ class Adapter:
     def __init__(self, model):
         self.model = model
 
-    @classmethod
-    def can(cls, capability: str) -> bool:
-        """Whether the kind offers ``capability`` (one of :data:`CAPABILITIES`)."""
-        if capability not in CAPABILITIES:
-            raise ValueError(f"unknown capability {capability!r}; known: {', '.join(CAPABILITIES)}")
-        return capability in cls.capabilities
-
-    def offers(self) -> str:
-        """The capabilities, for an error message."""
-        return str(sorted(self.capabilities) or "nothing")
-
     def plan_step(self, s, a, v_prev, phi: Phi):
         """``plan``: one step (s', z) from the state, the action and the voltage ``v_prev`` before
         the step (a kind without memory of it ignores it)."""
-        raise NotImplementedError(f"model kind {self.model.kind!r} cannot plan (capabilities: {self.offers()})")
+        raise NotImplementedError(f"model kind {self.model.kind!r} cannot plan (capabilities: {sorted(self.capabilities) or 'nothing'})")
 
     def plan_start(self, V: torch.Tensor) -> torch.Tensor:
         """``plan`` with memory: the entries (..., len(plan_memory)) of the DEA at rest at ``V``, SI."""
@@ -256,11 +245,6 @@ ADAPTERS: dict[type, type[Adapter]] = {
     TipPatchLagModel: TipPatchLagAdapter,
     TipMemoryModel: TipMemoryAdapter,
 }
-
-
-def register(model_cls: type, adapter_cls: type[Adapter]) -> None:
-    """Give the models of ``model_cls`` (and its subclasses without their own) ``adapter_cls``."""
-    ADAPTERS[model_cls] = adapter_cls
 
 
 def adapter_class(model_cls: type) -> type[Adapter]:
