@@ -207,9 +207,10 @@ class BiasKalman:
 
     def update(self, step_m: float, x_obs: float, held: bool = False) -> float:
         """The position estimate after the model predicted the step ``step_m`` (m, from the
-        previous estimate) and ``x_obs`` was observed. ``held``: the voltage did not change
-        and the model predicts no motion; static friction holds the coin, so the step adds
-        no process noise and the observations average down as σ/√n."""
+        previous estimate) and ``x_obs`` was observed. ``held``: the coin stood before the step
+        and the model predicts no motion (V held, or crept inside the model's dead band); static
+        friction holds the coin, so the step adds no process noise and the observations average
+        down as σ/√n."""
         d = float(step_m)
         F = np.array([[1.0, d], [0.0, 1.0]])
         s = np.array([self.s[0] + self.corrected(d), self.s[1]])

@@ -32,7 +32,15 @@ target the policy holds V (ΔV = 0) until the estimate leaves that band by more 
 own standard deviation: at constant V static friction holds the coin, so holding is
 what settles it, and the MPC's own small corrections on a noisy estimate are what would
 move it out. Past the target the plan may bring V down (the release pulls the
-coin back toward the clamp).
+coin back toward the clamp). A step in which f_a lets a standing coin stand, whether V holds or
+creeps inside f_a's dead band, adds no process noise to the filter: static friction holds the
+coin, so the observations average the estimate down as σ/√n while the policy creeps.
+
+**Chance constraint on overshoot** (``standoff_stds`` = z, :meth:`MPCPolicy._aim`). Under noise
+the coin stops where the estimate says, give or take its std σ. The plan aims z σ − tolerance
+short of the target on the side the coin comes from and holds V when the estimate is there, so
+the coin ends past the window's far edge with probability Φ(−z) at most; as the observations
+average σ down the aim closes on the target, and from σ ≤ tolerance / z it is the target.
 
 **Re-centring** (``RECENTRE_STDS``). The hold starts on an estimate that is still noisy (at
 σ = 0.1 mm its std is ~5–10 µm when the coin arrives), so the coin may stand near the edge
@@ -91,14 +99,16 @@ up to where that first episode's coin started, then at the cruise rate, tapered 
 approach distance (``approach_m`` in volts, by f_a's slope of the landing) down to ``creep_V``,
 so that the coin slides on to its stop instead of sticking and slipping (without the taper the
 landing is a staircase of V_f: surrogate:C2 noise-free settled 4/9 of episodes 2–10, 9/9 with
-it). The first V_f is that episode's end (where it turned back, if it went past), moved to the
-target by f_a's slope. Each scheduled episode holds V_f and averages its observations until its
-first re-centring: the mean of a landing. The landing line,
-fitted by weighted least squares to the landings and the first episode's end (a tolerance
-uncertain, ``LEARN_PATH_SHARE``) with f_a's slope as a prior, gives the next V_f where it meets the
-target; the hold's estimate starts from the line's value there and its variance, the
-observations refine it, and the re-centring steps only where they move it confidently off the
-target.
+it). The first point of the landing line is that episode's end (where it turned back, if it went
+past), moved by what f_a says the schedule's path changes against the path the episode took,
+(1 + g) (x_schedule − x_path), and uncertain by the estimate's variance plus the estimator's
+share ``process_fraction`` of that move. Each scheduled episode averages its observations at V_f
+until its first re-centring: the mean of a landing. The landing line, fitted by weighted least
+squares to these points with f_a's slope as a prior, gives the next V_f where it meets the chance
+constraint's aim (:meth:`MPCPolicy._aim`, with the line's std there): the target once the line is
+certain enough, else short of it. The episode's estimate starts from the line's value at V_f and
+its variance; landed on the target it holds, landed short it plans on from there as episode 1
+does.
 """
 
 from __future__ import annotations
@@ -141,15 +151,13 @@ HOLD_BAND, HOLD_STDS = 0.5, 4.5
 #: in a hold, creep toward the target while the estimate is off it by more than RECENTRE_STDS of its
 #: stds and RECENTRE_BAND × tolerance;
 RECENTRE_STDS, RECENTRE_BAND = 1.5, 0.3
-#: stand off until the estimate's std is below STANDOFF_STD × tolerance, at most MAX_WAIT steps per
-#: setpoint (no stand-off where σ/√MAX_WAIT stays above it);
-STANDOFF_STD, MAX_WAIT = 0.3, 1500
+#: stand off at most MAX_WAIT steps per setpoint (none where σ/√MAX_WAIT stays above the std at
+#: which the aim reaches the target);
+MAX_WAIT = 1500
 #: the rate schedule: the plant's full rate up to MARGIN_V below the voltage where f_a's coin starts,
 #: then the cruise rate (a learnt schedule without an approach distance: creep from MARGIN_V short of
-#: its end voltage);
-#: the first episode's end counts in the landing line with LEARN_PATH_SHARE × tolerance added to its
-#: std (the schedule does not take its path);
-MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
+#: its end voltage)
+MARGIN_V = 5.0
 #: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
 #: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
 #: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, and a schedule
@@ -205,9 +213,9 @@ class MPCConfig:
         ``approach_m`` (not below ``creep_V``), so the coin arrives slowly and does not coast
         past (0: no limit).
     standoff_stds : float
-        Under noise, while the position estimate's std exceeds ``STANDOFF_STD`` × tolerance,
-        aim this many stds short of the target and hold V there while the observations average
-        down, then go on (0: off).
+        The chance constraint on overshoot (:meth:`MPCPolicy._aim`): under noise, aim this many
+        stds of the position estimate, less the tolerance, short of the target, and close on it as
+        the held observations average the estimate down (0: off).
     reach_gate : bool
         Let the stand-off and the taper give way where f_a says the target lies at the edge of
         the reach (:meth:`MPCPolicy._at_reach`). Off for a plant that can go further than f_a at
@@ -371,21 +379,32 @@ class MPCPolicy(Policy):
                 slope = self._landing_slope(shape, V_ref)
             if slope is None:
                 return
-            # the planned path is not the schedule's: its end counts as a landing LEARN_PATH_SHARE
-            # tolerances uncertain
+            # the planned path is not the schedule's: its end moves by what f_a says the schedule
+            # changes, (1 + g) (x_schedule − x_path), uncertain by the estimator's share of a model step
+            rest = self.dynamics.state(0.0, 0.0, 0.0, None)
+            path = self.V_path[:self.turned_at] if self.turned is not None else self.V_path
+            nu = torch.tensor(path, dtype=torch.float64).diff(prepend=torch.zeros(1, dtype=torch.float64))
+            ends = [float(self._roll(rest, u)[0, -1, 0]) * X_UNIT_M
+                    for u in (nu.reshape(1, -1, 1) / self.dv_max_V, self._schedule_nu(shape, V_ref))]
+            shift = (1.0 + self.gain_error) * (ends[1] - ends[0])
+            kappa = self.config.estimator.process_fraction
             entry = {"slope": slope, "landings": [], **shape,
-                     "start": (V_ref, x_ref, float(self.bias.P[0, 0]) + (LEARN_PATH_SHARE * self.tolerance_m) ** 2)}
+                     "start": (V_ref, x_ref + shift, float(self.bias.P[0, 0]) + (kappa * shift) ** 2)}
         else:
             return
-        V_f, x_f, x_var = self._landing_fit(entry)
-        entry.update(V_f=V_f, x_f=x_f, x_var=x_var, gain=self.bias.gain, gain_var=float(self.bias.P[1, 1]))
+        V_f, x_f, x_var, short = self._landing_fit(entry)
+        entry.update(V_f=V_f, x_f=x_f, x_var=x_var, short=short, gain=self.bias.gain,
+                     gain_var=float(self.bias.P[1, 1]))
         self.learned[key] = entry
 
-    def _landing_fit(self, entry: dict) -> tuple[float, float, float]:
+    def _landing_fit(self, entry: dict) -> tuple[float, float, float, bool]:
         """The landing line x = c + b (V − V̄) by weighted least squares over the landings seen (each
         mean weighted by its count over σ²) and the first episode's end, with f_a's slope as a prior
-        on b (half its size as std): the end voltage where it crosses the target, clipped to the
-        voltage range, and the line's value and variance there (what the next hold starts from)."""
+        on b (half its size as std), and the schedule's end voltage V_f on it: where the line meets
+        the target, or, while the line is uncertain there, where it meets the chance constraint's
+        aim (:meth:`_aim`: ``standoff_stds`` of the line's std, less the tolerance, short of the
+        target). Returns V_f (clipped to the voltage range), the line's value and variance there
+        (what the episode's estimate starts from), and whether V_f stops short of the target."""
         points = [entry["start"], *entry["landings"]]
         V_mean = sum(p[0] / p[2] for p in points) / sum(1.0 / p[2] for p in points)
         b0 = entry["slope"]
@@ -402,9 +421,20 @@ class MPCPolicy(Policy):
         c, b = (cov @ r).tolist()
         if not b * b0 > 0:                  # the data say the wrong sign: keep f_a's
             b = b0
-        V_f = min(max(V_mean + (self.target_m - c) / b, 0.0), self.v_max_V)
-        row = torch.tensor([1.0, V_f - V_mean], dtype=torch.float64)
-        return V_f, c + b * (V_f - V_mean), float(row @ cov @ row)
+
+        def line(V):
+            row = torch.tensor([1.0, V - V_mean], dtype=torch.float64)
+            return c + b * (V - V_mean), float(row @ cov @ row)
+
+        aim, short = self.target_m, False
+        for _ in range(2):                  # the line's std at the aim, then the aim again
+            V_f = min(max(V_mean + (aim - c) / b, 0.0), self.v_max_V)
+            margin = self.standoff_stds * math.sqrt(line(V_f)[1]) - self.tolerance_m
+            if self.standoff_stds <= 0 or margin <= 0 or self._unresolvable():
+                break
+            aim, short = self.target_m + self.side * margin, True
+        V_f = min(max(V_mean + (aim - c) / b, 0.0), self.v_max_V)
+        return (V_f, *line(V_f), short)
 
     def _schedule_nu(self, shape: dict, V_f: float) -> torch.Tensor:
         """The learnt episode's rate schedule (:meth:`_schedule_step`, what :meth:`act` plays) from rest
@@ -444,7 +474,8 @@ class MPCPolicy(Policy):
         cfg = self.config
         self._learn()
         self.moved_target, self.landing = False, None
-        self.turned, self.V_peak = None, 0.0    # where a planned episode first turned back: (V, x)
+        self.turned, self.V_peak = None, 0.0    # where a planned episode first turned back past the target: (V, x)
+        self.V_path, self.turned_at = [], 0     # the voltages it applied, and how many of them up to the turn
         self.V_started = 0.0                    # where the rate schedule's fast start ended
         self.schedule = self.learned.get(self._task_key(spec)) if cfg.learn and cfg.terminal else None
         self.spec, self.target_m, self.tolerance_m = spec, float(spec.target_m), float(spec.tolerance_m)
@@ -532,30 +563,29 @@ class MPCPolicy(Policy):
         return Phi(**values)
 
     def _aim(self, xi0, x: float, V: float) -> float:
-        """Where the plan goes: the target, or while the estimate is still too uncertain to
-        stop inside the window (std above ``STANDOFF_STD`` × tolerance) a stand-off point
-        ``standoff_stds`` of its stds short of it, on the side the coin comes from. Not where
-        the target lies at the edge of the reach (:meth:`_at_reach`): a coin stopped there
-        restarts only after the tip has reloaded, and no voltage is left to make up that
-        stroke (fem:C7 at resolved parked at the stand-off and reached 400 V 11.5 µm short;
-        docs/control.md). Nor where waiting cannot help: held observations average the estimate
-        down as σ/√n at best, so when σ/√``MAX_WAIT`` is still above ``STANDOFF_STD`` × tolerance
-        (at σ = 1 mm and a 10 µm window: 26 µm after 1,500 steps) the stand-off only delays the
-        reach, and the plan aims at the target."""
-        std = self.estimate_std_m
-        if self.standoff_stds <= 0 or std <= STANDOFF_STD * self.tolerance_m or self.waited >= MAX_WAIT:
+        """Where the plan goes: a chance constraint on overshoot. The coin stops where the estimate
+        says, give or take its std σ, so the plan aims ``standoff_stds`` × σ − tolerance short of the
+        target, on the side the coin comes from: it then stops past the far edge of the window with
+        probability Φ(−``standoff_stds``) at most. As held observations average σ down the aim
+        closes on the target, which it reaches at σ = tolerance / ``standoff_stds``. At the target
+        itself: where the target lies at the edge of the reach (:meth:`_at_reach`; a coin stopped
+        short there restarts only after the tip has reloaded, and no voltage is left to make up that
+        stroke: fem:C7 at resolved parked at the stand-off and reached 400 V 11.5 µm short;
+        docs/control.md), and where waiting cannot help (:meth:`_unresolvable`), and after
+        ``MAX_WAIT`` steps at the stand-off."""
+        margin = self.standoff_stds * self.estimate_std_m - self.tolerance_m
+        if self.standoff_stds <= 0 or margin <= 0 or self.waited >= MAX_WAIT or self._unresolvable():
             return self.target_m
-        if self._unresolvable():
+        if self._at_reach(xi0, x, V, within=margin + self.tolerance_m + self.approach_m):
             return self.target_m
-        if self._at_reach(xi0, x, V, within=self.standoff_stds * std + self.approach_m):
-            return self.target_m
-        return self.target_m + self.side * self.standoff_stds * std
+        return self.target_m + self.side * margin
 
     def _unresolvable(self) -> bool:
-        """Whether held observations cannot average the estimate down to ``STANDOFF_STD`` ×
-        tolerance within ``MAX_WAIT`` steps (σ/√MAX_WAIT above it): waiting at a stand-off point
-        then only delays the reach."""
-        return self.spec.noise_std_m / math.sqrt(max(MAX_WAIT, 1)) > STANDOFF_STD * self.tolerance_m
+        """Whether held observations cannot average the estimate down to tolerance /
+        ``standoff_stds`` within ``MAX_WAIT`` steps (σ/√MAX_WAIT above it, at σ = 1 mm and a 10 µm
+        window: 26 µm after 1,500 steps): waiting at a stand-off point then only delays the reach."""
+        need = self.tolerance_m / max(self.standoff_stds, 1.0)
+        return self.spec.noise_std_m / math.sqrt(max(MAX_WAIT, 1)) > need
 
     def _wait(self, x: float, aim: float) -> bool:
         """Hold V at the stand-off point while the observations average the estimate down
@@ -657,7 +687,7 @@ class MPCPolicy(Policy):
         x_pred, u_pred = float(pred[0]) * X_UNIT_M, float(pred[1]) * U_UNIT_M_S
         if self.bias is not None:
             x_obs = x
-            x = self.bias.update(x_pred - x0, x_obs, held=V == V0 and abs(u0) < 1e-9)
+            x = self.bias.update(x_pred - x0, x_obs, held=abs(u0) < 1e-9)
             if not self.noisy:
                 return x_obs, (x_obs - x0) / self.dt
             return x, (1.0 + self.bias.gain) * u_pred
@@ -669,6 +699,7 @@ class MPCPolicy(Policy):
     def act(self, obs, info) -> float:
         cfg = self.config
         x, V = self.spec.position_of(obs), float(info["V_V"])
+        self.V_path.append(V)
         observed = x
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
@@ -688,8 +719,8 @@ class MPCPolicy(Policy):
         self.previous = (x, u, V)
         if V > self.V_peak:
             self.V_peak = V
-        elif V < self.V_peak and self.turned is None:
-            self.turned = (self.V_peak, x)
+        elif V < self.V_peak and self.turned is None and self.side * (x - self.target_m) < 0:
+            self.turned, self.turned_at = (self.V_peak, x), len(self.V_path) - 1   # turned back past the target
         xi0 = self.dynamics.state(x, u, V, self.memory)
         self.reach_end = None
         T = cfg.horizon
@@ -706,7 +737,9 @@ class MPCPolicy(Policy):
             # has not seen); held, the observations refine it, and they are the next landing
             x = self.bias.reset(self.schedule["x_f"], self.bias.gain, float(self.bias.P[1, 1]), self.schedule["x_var"])
             self.landing = {"V_f": V, "n": 0, "sum": 0.0, "open": True}
-            self.schedule, self.holding = None, True
+            # landed on the target by the line: hold; landed short of it (the chance constraint): plan on
+            self.holding = not self.schedule["short"]
+            self.schedule = None
             self.previous = (x, 0.0, V)
         if self.landing is not None and self.landing["open"] and V == self.landing["V_f"]:
             self.landing["n"] += 1
@@ -776,3 +809,4 @@ class MPCPolicy(Policy):
             # the friction's regularisation, docs/control.md) would only stall: creep instead
             dV = math.copysign(creep, dV)
         return dV
+

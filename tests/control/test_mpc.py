@@ -484,6 +484,54 @@ def test_the_approach_taper_gives_way_at_the_edge_of_the_reach(coulomb, sweep):
     assert rows[-0.5e-3]["settled"] and rows[-0.5e-3]["final_V_V"] < 350, rows[-0.5e-3]
 
 
+def test_a_coin_the_model_holds_averages_down_while_the_voltage_creeps(coulomb, sweep):
+    """A coin f_a says stands (here below its onset) is held by static friction whether or not
+    the voltage creeps, so the offset-free filter adds no process noise for that step and the
+    estimate's std falls as σ/√n: 200 observations at σ = 0.1 mm give ≈ 7 µm. This is what lets
+    the chance constraint close on the target while the policy creeps toward it (surrogate:C5 from
+    C5's ramp, noise 1e-4: episode 1 reached in 581 iterations against 1,142). Broken once (held
+    only where V did not change, as before): the std stalled at the process noise's floor, 10 µm."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, noise_std_m=1e-4)
+    env.reset(seed=0)
+    policy = MPCPolicy(coulomb, MPCConfig(inference=None, standoff_stds=2.0), phi=plant.truth)
+    policy.reset(env.task_spec())
+    rng = np.random.default_rng(0)
+    x_true, V = -50e-6, 10.0
+    for _ in range(200):
+        x, u = policy._estimate(x_true + 1e-4 * rng.standard_normal(), V)
+        policy.previous = (x, u, V)
+        V += 0.1                                   # creeping, far below the onset
+    assert u == 0.0
+    assert policy.estimate_std_m < 8e-6, policy.estimate_std_m
+
+
+def test_the_aim_is_a_chance_constraint_that_closes_as_the_estimate_averages(coulomb, sweep):
+    """The stand-off aims ``standoff_stds`` × σ − tolerance short of the target on the side the coin
+    comes from (``_aim``): 2 × 8 − 10 = 6 µm short at σ = 8 µm, and at the target once σ is at
+    most tolerance / ``standoff_stds`` (5 µm). Broken once (the tolerance left out of the margin):
+    the aim stood 16 µm short."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, noise_std_m=1e-4)
+    env.reset(seed=0)
+    policy = MPCPolicy(coulomb, MPCConfig(inference=None, standoff_stds=2.0), phi=plant.truth)
+    policy.reset(env.task_spec())
+    policy.bias.reset(-0.3e-3)
+    aims = {}
+    for std in (8e-6, 5e-6, 2e-6):
+        policy.bias.P[0, 0] = std ** 2
+        x = -0.3e-3
+        aims[std] = policy._aim(policy.dynamics.state(x, 0.0, 100.0, None), x, 100.0)
+    assert aims[8e-6] == pytest.approx(-0.4e-3 + 6e-6)
+    assert aims[5e-6] == aims[2e-6] == -0.4e-3
+
+
 def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep, monkeypatch):
     """The stand-off parks the coin short of the target while the estimate averages down; at the
     edge of the reach (−0.645 mm, 3 µm inside the fixture surrogate's 0.4 V-per-step travel) the
@@ -522,9 +570,8 @@ def test_the_stand_off_gives_way_at_the_edge_of_the_reach(coulomb, sweep, monkey
         if target == -0.645e-3:
             assert reach_rolls and max(reach_rolls.values()) == 1, reach_rolls.most_common(3)
     assert rows[-0.645e-3]["settled"] and waited[-0.645e-3] < 50, (rows[-0.645e-3], waited)
-    # well inside the reach it waits at the stand-off; whether it then settles within the episode
-    # rests on the fixture's training run (on an AMD EPYC it waited the whole max_wait and did not)
-    assert waited[-0.5e-3] > 50, (rows[-0.5e-3], waited)
+    # well inside the reach it waits at the stand-off (42 steps here) while the estimate averages down
+    assert waited[-0.5e-3] > 20, (rows[-0.5e-3], waited)
 
 
 def test_the_reach_gate_can_be_switched_off(coulomb, sweep):
@@ -583,12 +630,15 @@ def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(
     assert dV == (0.0 if expected == "hold" else pytest.approx(config.creep_V))
 
 
-def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_next_episode_is_faster(coulomb, sweep, monkeypatch):
-    """``learn`` (iterative learning control): episode 1 at σ = 0.1 mm with the stand-off waits for its
-    estimate to average down; it ends settled and leaves its final voltage and g; episode 2 plays the
-    rate schedule to that voltage (no plan, no stand-off) and holds: it reaches in fewer iterations
-    than episode 1, stays inside, and starts its filter from g. Another noise is another task. Broken
-    once: the schedule left out (episode 2 took as long as episode 1)."""
+def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_episodes_get_faster(coulomb, sweep, monkeypatch):
+    """``learn`` (iterative learning control): episode 1 at σ = 0.1 mm with the stand-off ends settled
+    and leaves its final voltage and g; the next episodes play the rate schedule to the voltage where
+    the landing line meets the chance constraint's aim and plan on from there. Episode 1's end enters
+    the line moved by what f_a says the schedule's path changes, so the second episode already
+    reaches in a fraction of the first's iterations (fixture: 451, then 69, 69, 68), and none goes
+    past the window. Another noise is another task. Broken once: the schedule left out (the second
+    episode took as long as the first); and once with episode 1's end entering unmoved, a
+    tolerance uncertain (486 iterations for the second)."""
     from deapull.control import mpc_policy
     monkeypatch.setattr(mpc_policy, "MAX_WAIT", 1200)
     from deapull.control.env import CoinPushEnv
@@ -605,12 +655,13 @@ def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_next_epis
     second = run_episode(env, policy, seed=1, step_limit=1800, hold_steps=50).row
     (learned,) = policy.learned.values()
     assert learned["gain"] == gain and abs(learned["V_f"] - V_end) < 10 and V_end > 100
-    assert first["settled"] and second["settled"]
-    assert second["iterations_to_target"] < 0.5 * first["iterations_to_target"]
-    assert second["overshoot_m"] < 1e-5
+    third = run_episode(env, policy, seed=2, step_limit=1800, hold_steps=50).row
+    rows = (first, second, third)
+    assert all(r["settled"] and r["overshoot_m"] < 1e-5 for r in rows), rows
+    assert max(second["iterations_to_target"], third["iterations_to_target"]) < 0.5 * first["iterations_to_target"]
     other = MPCPolicy(coulomb, replace(config, learn=False), phi=plant.truth)
-    run_episode(env, other, seed=0, step_limit=1800, hold_steps=50)
-    again = run_episode(env, other, seed=1, step_limit=1800, hold_steps=50).row
+    for seed in range(3):
+        again = run_episode(env, other, seed=seed, step_limit=1800, hold_steps=50).row
     assert again["iterations_to_target"] > 0.5 * first["iterations_to_target"] and other.learned == {}
 
 
