@@ -99,16 +99,13 @@ up to where that first episode's coin started, then at the cruise rate, tapered 
 approach distance (``approach_m`` in volts, by f_a's slope of the landing) down to ``creep_V``,
 so that the coin slides on to its stop instead of sticking and slipping (without the taper the
 landing is a staircase of V_f: surrogate:C2 noise-free settled 4/9 of episodes 2–10, 9/9 with
-it). The first point of the landing line is that episode's end (where it turned back, if it went
-past), moved by what f_a says the schedule's path changes against the path the episode took,
-(1 + g) (x_schedule − x_path), and uncertain by the estimate's variance plus the estimator's
-share ``process_fraction`` of that move. Each scheduled episode averages its observations at V_f
-until its first re-centring: the mean of a landing. The landing line, fitted by weighted least
-squares to these points with f_a's slope as a prior, gives the next V_f where it meets the chance
-constraint's aim (:meth:`MPCPolicy._aim`, with the line's std there): the target once the line is
-certain enough, else short of it. The episode's estimate starts from the line's value at V_f and
-its variance; landed on the target it holds, landed short it plans on from there as episode 1
-does.
+it). The first V_f is that episode's end (where it turned back, if it went past the target), moved
+to the target by f_a's slope. Each scheduled episode holds V_f and averages its observations until
+its first re-centring: the mean of a landing. The landing line, fitted by weighted least squares
+to the landings and the first episode's end (a tolerance uncertain, ``LEARN_PATH_SHARE``) with
+f_a's slope as a prior, gives the next V_f where it meets the target; the hold's estimate starts
+from the line's value there and its variance, the observations refine it, and the re-centring
+steps only where they move it confidently off the target.
 """
 
 from __future__ import annotations
@@ -156,8 +153,10 @@ RECENTRE_STDS, RECENTRE_BAND = 1.5, 0.3
 MAX_WAIT = 1500
 #: the rate schedule: the plant's full rate up to MARGIN_V below the voltage where f_a's coin starts,
 #: then the cruise rate (a learnt schedule without an approach distance: creep from MARGIN_V short of
-#: its end voltage)
-MARGIN_V = 5.0
+#: its end voltage);
+#: the first episode's end counts in the landing line with LEARN_PATH_SHARE × tolerance added to its
+#: std (the schedule does not take its path);
+MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
 #: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
 #: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
 #: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, and a schedule
@@ -379,32 +378,21 @@ class MPCPolicy(Policy):
                 slope = self._landing_slope(shape, V_ref)
             if slope is None:
                 return
-            # the planned path is not the schedule's: its end moves by what f_a says the schedule
-            # changes, (1 + g) (x_schedule − x_path), uncertain by the estimator's share of a model step
-            rest = self.dynamics.state(0.0, 0.0, 0.0, None)
-            path = self.V_path[:self.turned_at] if self.turned is not None else self.V_path
-            nu = torch.tensor(path, dtype=torch.float64).diff(prepend=torch.zeros(1, dtype=torch.float64))
-            ends = [float(self._roll(rest, u)[0, -1, 0]) * X_UNIT_M
-                    for u in (nu.reshape(1, -1, 1) / self.dv_max_V, self._schedule_nu(shape, V_ref))]
-            shift = (1.0 + self.gain_error) * (ends[1] - ends[0])
-            kappa = self.config.estimator.process_fraction
+            # the planned path is not the schedule's: its end counts as a landing LEARN_PATH_SHARE
+            # tolerances uncertain
             entry = {"slope": slope, "landings": [], **shape,
-                     "start": (V_ref, x_ref + shift, float(self.bias.P[0, 0]) + (kappa * shift) ** 2)}
+                     "start": (V_ref, x_ref, float(self.bias.P[0, 0]) + (LEARN_PATH_SHARE * self.tolerance_m) ** 2)}
         else:
             return
-        V_f, x_f, x_var, short = self._landing_fit(entry)
-        entry.update(V_f=V_f, x_f=x_f, x_var=x_var, short=short, gain=self.bias.gain,
-                     gain_var=float(self.bias.P[1, 1]))
+        V_f, x_f, x_var = self._landing_fit(entry)
+        entry.update(V_f=V_f, x_f=x_f, x_var=x_var, gain=self.bias.gain, gain_var=float(self.bias.P[1, 1]))
         self.learned[key] = entry
 
-    def _landing_fit(self, entry: dict) -> tuple[float, float, float, bool]:
+    def _landing_fit(self, entry: dict) -> tuple[float, float, float]:
         """The landing line x = c + b (V − V̄) by weighted least squares over the landings seen (each
         mean weighted by its count over σ²) and the first episode's end, with f_a's slope as a prior
-        on b (half its size as std), and the schedule's end voltage V_f on it: where the line meets
-        the target, or, while the line is uncertain there, where it meets the chance constraint's
-        aim (:meth:`_aim`: ``standoff_stds`` of the line's std, less the tolerance, short of the
-        target). Returns V_f (clipped to the voltage range), the line's value and variance there
-        (what the episode's estimate starts from), and whether V_f stops short of the target."""
+        on b (half its size as std): the end voltage where it crosses the target, clipped to the
+        voltage range, and the line's value and variance there (what the next hold starts from)."""
         points = [entry["start"], *entry["landings"]]
         V_mean = sum(p[0] / p[2] for p in points) / sum(1.0 / p[2] for p in points)
         b0 = entry["slope"]
@@ -422,19 +410,9 @@ class MPCPolicy(Policy):
         if not b * b0 > 0:                  # the data say the wrong sign: keep f_a's
             b = b0
 
-        def line(V):
-            row = torch.tensor([1.0, V - V_mean], dtype=torch.float64)
-            return c + b * (V - V_mean), float(row @ cov @ row)
-
-        aim, short = self.target_m, False
-        for _ in range(2):                  # the line's std at the aim, then the aim again
-            V_f = min(max(V_mean + (aim - c) / b, 0.0), self.v_max_V)
-            margin = self.standoff_stds * math.sqrt(line(V_f)[1]) - self.tolerance_m
-            if self.standoff_stds <= 0 or margin <= 0 or self._unresolvable():
-                break
-            aim, short = self.target_m + self.side * margin, True
-        V_f = min(max(V_mean + (aim - c) / b, 0.0), self.v_max_V)
-        return (V_f, *line(V_f), short)
+        V_f = min(max(V_mean + (self.target_m - c) / b, 0.0), self.v_max_V)
+        row = torch.tensor([1.0, V_f - V_mean], dtype=torch.float64)
+        return V_f, c + b * (V_f - V_mean), float(row @ cov @ row)
 
     def _schedule_nu(self, shape: dict, V_f: float) -> torch.Tensor:
         """The learnt episode's rate schedule (:meth:`_schedule_step`, what :meth:`act` plays) from rest
@@ -475,7 +453,6 @@ class MPCPolicy(Policy):
         self._learn()
         self.moved_target, self.landing = False, None
         self.turned, self.V_peak = None, 0.0    # where a planned episode first turned back past the target: (V, x)
-        self.V_path, self.turned_at = [], 0     # the voltages it applied, and how many of them up to the turn
         self.V_started = 0.0                    # where the rate schedule's fast start ended
         self.schedule = self.learned.get(self._task_key(spec)) if cfg.learn and cfg.terminal else None
         self.spec, self.target_m, self.tolerance_m = spec, float(spec.target_m), float(spec.tolerance_m)
@@ -699,7 +676,6 @@ class MPCPolicy(Policy):
     def act(self, obs, info) -> float:
         cfg = self.config
         x, V = self.spec.position_of(obs), float(info["V_V"])
-        self.V_path.append(V)
         observed = x
         target = float(info.get("target_m", self.target_m))
         if target != self.target_m:          # a new setpoint: plan afresh
@@ -720,7 +696,7 @@ class MPCPolicy(Policy):
         if V > self.V_peak:
             self.V_peak = V
         elif V < self.V_peak and self.turned is None and self.side * (x - self.target_m) < 0:
-            self.turned, self.turned_at = (self.V_peak, x), len(self.V_path) - 1   # turned back past the target
+            self.turned = (self.V_peak, x)      # turned back past the target
         xi0 = self.dynamics.state(x, u, V, self.memory)
         self.reach_end = None
         T = cfg.horizon
@@ -737,9 +713,7 @@ class MPCPolicy(Policy):
             # has not seen); held, the observations refine it, and they are the next landing
             x = self.bias.reset(self.schedule["x_f"], self.bias.gain, float(self.bias.P[1, 1]), self.schedule["x_var"])
             self.landing = {"V_f": V, "n": 0, "sum": 0.0, "open": True}
-            # landed on the target by the line: hold; landed short of it (the chance constraint): plan on
-            self.holding = not self.schedule["short"]
-            self.schedule = None
+            self.schedule, self.holding = None, True
             self.previous = (x, 0.0, V)
         if self.landing is not None and self.landing["open"] and V == self.landing["V_f"]:
             self.landing["n"] += 1

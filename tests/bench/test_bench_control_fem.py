@@ -47,7 +47,7 @@ def test_the_bench_runs_make_control_fems_mpc_on_the_plants_asked_for():
     differ = {f.name: (getattr(timed, f.name), getattr(run, f.name)) for f in dataclasses.fields(timed)
               if getattr(timed, f.name) != getattr(run, f.name)}
     assert set(differ) == {"plants", "out"}, differ
-    assert timed.mpc.standoff_stds == 2.0 and timed.mpc_phi == "prior" and timed.mpc.rate_V == 0.4   # the fem preset
+    assert timed.mpc.standoff_stds == 2.0 and timed.mpc_phi == "prior" and timed.mpc.rate_V == 1.0   # the fem preset
 
 
 @pytest.mark.parametrize("argv, named", [

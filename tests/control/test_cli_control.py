@@ -338,7 +338,7 @@ def test_a_preset_sets_the_options_that_flags_and_set_control_override(tmp_path)
     assert mpc_config(_parsed("--preset", "surrogate", "--out", str(tmp_path)).mpc_table).standoff_stds == 2.0
     fem = _parsed("--preset", "fem", "--out", str(tmp_path))
     fem_mpc = mpc_config(fem.mpc_table)
-    assert fem.plant.count("fem:") == 8 and fem_mpc.rate_V == 0.4 and fem.reach_fraction == 0.8
+    assert fem.plant.count("fem:") == 8 and fem_mpc.rate_V == 1.0 and fem.reach_fraction == 0.8
     assert fem.mpc_phi == "prior" and fem_mpc.estimator.innovation_window == 25
 
 

@@ -633,12 +633,11 @@ def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(
 def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_episodes_get_faster(coulomb, sweep, monkeypatch):
     """``learn`` (iterative learning control): episode 1 at σ = 0.1 mm with the stand-off ends settled
     and leaves its final voltage and g; the next episodes play the rate schedule to the voltage where
-    the landing line meets the chance constraint's aim and plan on from there. Episode 1's end enters
-    the line moved by what f_a says the schedule's path changes, so the second episode already
-    reaches in a fraction of the first's iterations (fixture: 451, then 69, 69, 68), and none goes
+    the landing line meets the target, and hold: on the fixture 451 iterations, then 69, 68, 68, none
     past the window. Another noise is another task. Broken once: the schedule left out (the second
-    episode took as long as the first); and once with episode 1's end entering unmoved, a
-    tolerance uncertain (486 iterations for the second)."""
+    episode took as long as the first); and once with a turn counted wherever V first fell (short
+    of the target too), so that the line started from where episode 1 turned on its way (545
+    iterations for the second)."""
     from deapull.control import mpc_policy
     monkeypatch.setattr(mpc_policy, "MAX_WAIT", 1200)
     from deapull.control.env import CoinPushEnv

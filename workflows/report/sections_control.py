@@ -191,8 +191,8 @@ def mpc_settings_text(config: dict) -> str:
         parts.append(f"slowing within {1e3 * mpc['approach_m']:g} mm of the target (`mpc.approach_m`) "
                      f"down to {creep:g} V per step (`mpc.creep_V`)")
     if (mpc.get("standoff_stds") or 0.0) > 0:
-        parts.append(f"stopping {mpc['standoff_stds']:g} stds of its estimate short while that is uncertain "
-                     "(`mpc.standoff_stds`)")
+        parts.append(f"aiming {mpc['standoff_stds']:g} stds of its estimate, less the tolerance, short of the "
+                     "target, closing as the estimate averages down (`mpc.standoff_stds`)")
     if (estimator.get("innovation_window") or 0) > 0:
         parts.append(f"its bias filter checking the mean of its last {estimator['innovation_window']:d} "
                      "innovations (`mpc.estimator.innovation_window`)")
