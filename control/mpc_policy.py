@@ -553,7 +553,7 @@ class MPCPolicy(Policy):
         margin = self.standoff_stds * self.estimate_std_m - self.tolerance_m
         if self.standoff_stds <= 0 or margin <= 0 or self.waited >= MAX_WAIT or self._unresolvable():
             return self.target_m
-        if self._at_reach(xi0, x, V, within=margin + self.tolerance_m + self.approach_m):
+        if self._at_reach(xi0, x, V, within=self.standoff_stds * self.estimate_std_m + self.approach_m):
             return self.target_m
         return self.target_m + self.side * margin
 
