@@ -721,7 +721,7 @@ DISCRETISATION = ("mesh", "solver", "contact", "time")
 #: keys that choose the path to the solution, not the solution (to the Newton and the coupling
 #: tolerances): a dataset made with other values is the same fidelity
 SOLVER_PATH = (("solver", "jacobian_reuse_ratio"), ("solver", "line_search_reuse_ratio"), ("solver", "predictor"),
-               ("solver", "linear_solver"), ("solver", "coupling_tol_m"))
+               ("solver", "linear_solver"), ("solver", "coupling_tol_m"), ("solver", "newton_atol"))
 
 
 def _fidelity_dict(scene_dict: dict) -> dict:

@@ -202,14 +202,15 @@ def test_a_key_added_after_the_datasets_is_written_only_when_set():
 
 
 def test_the_solver_path_keys_do_not_make_another_fidelity():
-    """A dataset made with another Jacobian reuse ratio, factor package or coupling tolerance is the
+    """A dataset made with another Jacobian reuse ratio, factor package, coupling or Newton tolerance is the
     scene file as written (the same solution to the Newton and coupling tolerances); a mesh key makes
     another fidelity."""
     def made(*overrides):
         return scenes.load("coin_pull", setup="C3", overrides=list(overrides)).to_toml()
     name, print0 = scenes.fidelity_of_resolved(made(), "C3")
     assert name == ""
-    for path_key in ("solver.jacobian_reuse_ratio=0.9", "solver.linear_solver=superlu", "solver.coupling_tol_m=1e-8"):
+    for path_key in ("solver.jacobian_reuse_ratio=0.9", "solver.linear_solver=superlu", "solver.coupling_tol_m=1e-8",
+                     "solver.newton_atol=1e-9"):
         assert scenes.fidelity_of_resolved(made(path_key), "C3") == ("", print0)
     name, print1 = scenes.fidelity_of_resolved(made("mesh.tip_zone_divisions=8"), "C3")
     assert name is None and print1 != print0
