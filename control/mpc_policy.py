@@ -157,6 +157,12 @@ MAX_WAIT = 1500
 #: the first episode's end counts in the landing line with LEARN_PATH_SHARE × tolerance added to its
 #: std (the schedule does not take its path);
 MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
+#: f_a's slope of the landing is the landing line's prior on its slope, with SLOPE_PRIOR × itself as
+#: std: near the end of the reach f_a's slope can be a quarter of the plant's (surrogate preset, C1
+#: at 399 V: −3.1 against −11 to −14 µm/V), and the landings, spread over volts, must be able to
+#: outweigh it (at 0.5 the line kept f_a's slope and 3 of 20 episodes landed 11–13 µm past the
+#: target at σ = 0.1 mm; at 2, 20/20 settled: make control, docs/control.md)
+SLOPE_PRIOR = 2.0
 #: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
 #: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
 #: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, and a schedule
@@ -391,20 +397,20 @@ class MPCPolicy(Policy):
     def _landing_fit(self, entry: dict) -> tuple[float, float, float]:
         """The landing line x = c + b (V − V̄) by weighted least squares over the landings seen (each
         mean weighted by its count over σ²) and the first episode's end, with f_a's slope as a prior
-        on b (half its size as std): the end voltage where it crosses the target, clipped to the
+        on b (:data:`SLOPE_PRIOR` × its size as std): the end voltage where it crosses the target, clipped to the
         voltage range, and the line's value and variance there (what the next hold starts from)."""
         points = [entry["start"], *entry["landings"]]
         V_mean = sum(p[0] / p[2] for p in points) / sum(1.0 / p[2] for p in points)
         b0 = entry["slope"]
-        # normal equations in (c, b): the data, and the prior (b − b0)² / (b0 / 2)²
+        # normal equations in (c, b): the data, and the prior (b − b0)² / (SLOPE_PRIOR b0)²
         A = torch.zeros(2, 2, dtype=torch.float64)
         r = torch.zeros(2, dtype=torch.float64)
         for V, m, var in points:
             row = torch.tensor([1.0, V - V_mean], dtype=torch.float64)
             A += torch.outer(row, row) / var
             r += row * m / var
-        A[1, 1] += 1.0 / (0.5 * b0) ** 2
-        r[1] += b0 / (0.5 * b0) ** 2
+        A[1, 1] += 1.0 / (SLOPE_PRIOR * b0) ** 2
+        r[1] += b0 / (SLOPE_PRIOR * b0) ** 2
         cov = torch.linalg.inv(A)
         c, b = (cov @ r).tolist()
         if not b * b0 > 0:                  # the data say the wrong sign: keep f_a's

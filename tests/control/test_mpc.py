@@ -701,3 +701,27 @@ def test_the_learnt_schedule_lands_where_the_landings_say(coulomb, sweep):
     errors = [abs(x + 0.4e-3) for x in landed]
     assert errors[1] < 0.5 * errors[0] and errors[1] < 2e-6
     assert all(r["settled"] for r in rows[2:])
+
+
+
+def test_the_landing_line_learns_a_slope_that_f_a_has_wrong(coulomb, sweep):
+    """Near the end of the reach f_a's slope of the landing can be a quarter of the plant's; it is the
+    landing line's prior only. The points are a recorded run (surrogate preset, surrogate:C1 at
+    σ = 0.1 mm, episode 6: episode 1's end at 400 V and four landings' means), f_a's slope
+    −3.06 µm/V; the plant's own landings, read off the episodes that held where they landed, lie at
+    −11 µm/V. The next end voltage puts the plant's landing inside the ±10 µm window (399.20 V,
+    5 µm past). Broken once (the prior's std at half f_a's slope, as before): 399.91 V, 13 µm past."""
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None), phi=plant.truth)
+    policy.target_m, policy.v_max_V = -1e-3, 400.0
+    um = 1e-6
+    (V0, x0, s0), *landings = [(400.0, -1028.4, 12.1), (390.72, -882.2, 31.6), (396.84, -980.9, 9.5),
+                               (399.0, -988.9, 10.2), (399.76, -997.5, 10.2)]
+    entry = {"slope": -3.06 * um, "start": (V0, x0 * um, (s0 * um) ** 2),
+             "landings": [(V, x * um, (s * um) ** 2) for V, x, s in landings]}
+    V_f, x_f, _ = policy._landing_fit(entry)
+    plant_V = [398.5, 398.62, 399.0, 399.2, 399.33, 399.76, 399.9]
+    plant_x = [-997.1, -998.4, -1002.7, -1005.0, -1006.5, -1011.4, -1013.0]
+    assert abs(np.interp(V_f, plant_V, plant_x) + 1000.0) < 10.0 and x_f == pytest.approx(-1e-3)
