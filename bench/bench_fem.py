@@ -33,7 +33,8 @@ GOAL_C3_S, GOAL_SWEEP_S, MOONSHOT_S = 60.0, 240.0, ABAQUS_S / 10
 BASELINE = ("solver.predictor='linear'", "solver.line_search_reuse_ratio=0.6", "solver.coupling_tol_m=1e-10",
             "solver.newton_atol=1e-8")
 CASES = (("data fidelity (scene file)", "data", "", ()),
-         ("baseline: linear predictor, line-search reuse 0.6, coupling 0.1 nm, Newton 1e-8 N", "baseline", "", BASELINE),
+         ("baseline: linear predictor, line-search reuse 0.6, coupling 0.1 nm, Newton 1e-8 N", "baseline", "",
+          BASELINE),
          ("preview", "preview", "preview", ()))
 
 

@@ -153,15 +153,15 @@ RECENTRE_STDS, RECENTRE_BAND = 1.5, 0.3
 MAX_WAIT = 1500
 #: the rate schedule: the plant's full rate up to MARGIN_V below the voltage where f_a's coin starts,
 #: then the cruise rate (a learnt schedule without an approach distance: creep from MARGIN_V short of
-#: its end voltage);
+#: its end voltage)
+MARGIN_V = 5.0
 #: the first episode's end counts in the landing line with LEARN_PATH_SHARE × tolerance added to its
-#: std (the schedule does not take its path);
-MARGIN_V, LEARN_PATH_SHARE = 5.0, 1.0
+#: std (the schedule does not take its path)
+LEARN_PATH_SHARE = 1.0
 #: f_a's slope of the landing is the landing line's prior on its slope, with SLOPE_PRIOR × itself as
-#: std: near the end of the reach f_a's slope can be a quarter of the plant's (surrogate preset, C1
-#: at 399 V: −3.1 against −11 to −14 µm/V), and the landings, spread over volts, must be able to
-#: outweigh it (at 0.5 the line kept f_a's slope and 3 of 20 episodes landed 11–13 µm past the
-#: target at σ = 0.1 mm; at 2, 20/20 settled: make control, docs/control.md)
+#: std: near the end of the reach f_a's slope can be a quarter of the plant's (surrogate:C1 at 399 V:
+#: −3.1 against −11 µm/V), and the landings, spread over volts, outweigh it
+#: (tests/control/test_mpc.py::test_the_landing_line_learns_a_slope_that_f_a_has_wrong)
 SLOPE_PRIOR = 2.0
 #: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
 #: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
@@ -397,8 +397,9 @@ class MPCPolicy(Policy):
     def _landing_fit(self, entry: dict) -> tuple[float, float, float]:
         """The landing line x = c + b (V − V̄) by weighted least squares over the landings seen (each
         mean weighted by its count over σ²) and the first episode's end, with f_a's slope as a prior
-        on b (:data:`SLOPE_PRIOR` × its size as std): the end voltage where it crosses the target, clipped to the
-        voltage range, and the line's value and variance there (what the next hold starts from)."""
+        on b (:data:`SLOPE_PRIOR` × its size as std): the end voltage where it crosses the target,
+        clipped to the voltage range, and the line's value and variance there (what the next hold
+        starts from)."""
         points = [entry["start"], *entry["landings"]]
         V_mean = sum(p[0] / p[2] for p in points) / sum(1.0 / p[2] for p in points)
         b0 = entry["slope"]
