@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from deapull import dataset
+from deapull.fem_solver.compat import FORM_CFLAGS_ENV
 from deapull.io import write_json
 from deapull.paper import ABAQUS_POINTS, ABAQUS_S
 
@@ -26,16 +27,17 @@ ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "bench" / "reference" / "contact_reference.json"
 #: the goals beside the paper's 130 s: C3 on one core, the 8-setup sweep on 2 ranks, and the moonshot
 GOAL_C3_S, GOAL_SWEEP_S, MOONSHOT_S = 60.0, 240.0, ABAQUS_S / 10
-#: (label, folder, --fidelity, --set overrides); the baseline is the data fidelity on the solver path
-#: before the last speed-ups (the linear predictor, the line search's solves at the full-step solves'
-#: Jacobian reuse 0.6, the coin-DEA iteration converged to 0.1 nm, Newton to a residual of 1e-8 N),
-#: timed in the same run
+#: (label, folder, --fidelity, --set overrides, the forms' C flags or None: compat.FORM_CFLAGS); the
+#: baseline is the data fidelity on the solver path before the last speed-ups (the linear predictor, the
+#: line search's solves at the full-step solves' Jacobian reuse 0.6, the coin-DEA iteration converged to
+#: 0.1 nm, Newton to a residual of 1e-8 N, the forms compiled at dolfinx's own flags), timed in the same run
 BASELINE = ("solver.predictor='linear'", "solver.line_search_reuse_ratio=0.6", "solver.coupling_tol_m=1e-10",
             "solver.newton_atol=1e-8")
-CASES = (("data fidelity (scene file)", "data", "", ()),
-         ("baseline: linear predictor, line-search reuse 0.6, coupling 0.1 nm, Newton 1e-8 N", "baseline", "",
-          BASELINE),
-         ("preview", "preview", "preview", ()))
+BASELINE_CFLAGS = "-O2 -g0"
+CASES = (("data fidelity (scene file)", "data", "", (), None),
+         ("baseline: linear predictor, line-search reuse 0.6, coupling 0.1 nm, Newton 1e-8 N, forms -O2",
+          "baseline", "", BASELINE, BASELINE_CFLAGS),
+         ("preview", "preview", "preview", (), None))
 
 
 def run(cmd, env=None) -> float:
@@ -49,9 +51,10 @@ def mpirun_env() -> dict:
                 OMPI_MCA_rmaps_base_oversubscribe="1")
 
 
-def solve(out: Path, fidelity: str, overrides=()) -> dataset.Run:
+def solve(out: Path, fidelity: str, overrides=(), cflags: str | None = None) -> dataset.Run:
     cmd = [sys.executable, "-m", "deapull.workflows", "solve", "--scene", "coin_pull", "--setup", "C3", "--out", str(out)]
-    run(cmd + (["--fidelity", fidelity] if fidelity else []) + [a for o in overrides for a in ("--set", o)])
+    env = dict(os.environ, **{FORM_CFLAGS_ENV: cflags}) if cflags else None
+    run(cmd + (["--fidelity", fidelity] if fidelity else []) + [a for o in overrides for a in ("--set", o)], env=env)
     return dataset.read(out / "C3.nc", ("t", "x", "newton_iterations", "n_contact"))
 
 
@@ -66,8 +69,8 @@ def main(argv=None) -> int:
     ref = json.loads(ref_path.read_text()) if ref_path.is_file() else {}
     t_ref, x_ref = ref.get("time_s", 0.95), ref.get("reference_x_at_t_mm")
     runs, wall = {}, {}
-    for label, folder, fidelity, overrides in CASES:
-        r = solve(out / folder, fidelity, overrides)
+    for label, folder, fidelity, overrides, cflags in CASES:
+        r = solve(out / folder, fidelity, overrides, cflags)
         wall[folder] = r.number("wall_time_total_s")
         c = r.columns
         x_t = 1e3 * float(np.interp(t_ref, c["t"], c["x"]))
