@@ -163,6 +163,9 @@ LEARN_PATH_SHARE = 1.0
 #: −3.1 against −11 µm/V), and the landings, spread over volts, outweigh it
 #: (tests/control/test_mpc.py::test_the_landing_line_learns_a_slope_that_f_a_has_wrong)
 SLOPE_PRIOR = 2.0
+#: f_a's slope of the landing is a difference over SLOPE_SPAN_V: f_a's landings form a staircase
+#: (stick-slip) whose steps are a few volts long, and a 2 V difference reads a step's flat
+SLOPE_SPAN_V = 10.0
 #: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
 #: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
 #: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, and a schedule
@@ -447,12 +450,13 @@ class MPCPolicy(Policy):
 
     def _landing_slope(self, shape: dict, V_f: float) -> float | None:
         """dx/dV of where the schedule to ``V_f`` lands, by f_a at the planning φ scaled by the
-        episode's 1 + g (m/V; a difference over 2 V within [0, the voltage limit]); None where
+        episode's 1 + g (m/V; a difference over SLOPE_SPAN_V within [0, the voltage limit]); None where
         f_a's coin does not move there (then nothing is learnt)."""
-        low = min(max(V_f - 1.0, 0.0), self.v_max_V - 2.0)
+        low = min(max(V_f - SLOPE_SPAN_V / 2, 0.0), self.v_max_V - SLOPE_SPAN_V)
         rest = self.dynamics.state(0.0, 0.0, 0.0, None)
-        ends = [float(self._roll(rest, self._schedule_nu(shape, V))[0, -1, 0]) * X_UNIT_M for V in (low, low + 2.0)]
-        slope = (1.0 + self.gain_error) * (ends[1] - ends[0]) / 2.0
+        ends = [float(self._roll(rest, self._schedule_nu(shape, V))[0, -1, 0]) * X_UNIT_M
+                for V in (low, low + SLOPE_SPAN_V)]
+        slope = (1.0 + self.gain_error) * (ends[1] - ends[0]) / SLOPE_SPAN_V
         return slope if abs(slope) > 1e-9 else None
 
     def reset(self, spec) -> None:

@@ -725,3 +725,29 @@ def test_the_landing_line_learns_a_slope_that_f_a_has_wrong(coulomb, sweep):
     plant_V = [398.5, 398.62, 399.0, 399.2, 399.33, 399.76, 399.9]
     plant_x = [-997.1, -998.4, -1002.7, -1005.0, -1006.5, -1011.4, -1013.0]
     assert abs(np.interp(V_f, plant_V, plant_x) + 1000.0) < 10.0 and x_f == pytest.approx(-1e-3)
+
+
+def test_f_as_slope_of_the_landing_reads_the_staircases_trend_not_one_steps_flat(coulomb, sweep, monkeypatch):
+    """f_a's landings form a staircase (its coin sticks and slips), so the slope that starts the
+    landing line is a difference over ``SLOPE_SPAN_V``, several of its steps. On a staircase of 4 V
+    steps with a trend of −10 µm/V the slope read at any end voltage lies within 25 % of the
+    trend. Broken once (a 2 V difference, as before): on a step's flat it reads 0 (None: nothing is
+    learnt), and across a riser −20 µm/V."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import X_UNIT_M, MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.4e-3)
+    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None), phi=plant.truth)
+    policy.reset(env.task_spec())
+    trend, step = -10e-6, 4.0
+
+    def staircase(xi0, nu):
+        V_end = float(nu.sum()) * policy.dv_max_V
+        x = trend * step * np.floor(V_end / step) / X_UNIT_M
+        return torch.full((1, nu.shape[1], 1), x, dtype=torch.float64)
+    monkeypatch.setattr(policy, "_roll", staircase)
+    shape = {"V_start": 0.0, "taper_V": 0.0}
+    for V_f in (321.0, 350.5, 383.0, 399.0, 400.0):
+        slope = policy._landing_slope(shape, V_f)
+        assert slope is not None and abs(slope / trend - 1.0) < 0.25, (V_f, slope)
