@@ -85,6 +85,16 @@ or reversal, where the tip must reload its friction by ~2 μ_b N c of stroke bef
 moves (measured on surrogate:C1 at 0.4 V per step: 3 of 10 episodes stood still for
 3,000 steps).
 
+**Sweep** (``SWEEP``, :meth:`MPCPolicy._sweep`). Where the noise cannot be averaged down to the
+window in time (``_unresolvable``: at σ = 1 mm the estimate's std is ~200 µm during the push), a
+push that trusts the estimate jumps the window or stops short of it. The first push toward a target
+then follows f_a open-loop under the voltages applied, with the bias filter's gain band
+g ± ``standoff_stds`` of its std: the full rate while even the farthest-travelling plant of the
+band stays out of the window after one more full step, then steps that move that plant at most
+``SWEEP_STEP`` tolerances (a step shorter than the window cannot jump it), and V held once even
+the least-travelling plant is past the window. The coin crosses the window (the paper's
+criterion); where it stops past it is what the noise allows.
+
 **Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
 moves the setpoint (push, push, pull back) re-plans at once.
 
@@ -177,6 +187,11 @@ IDENTIFIED_CRLB = 0.1
 #: creep toward the target when the solved plan holds V with the coin standing outside the hold band
 #: (module docstring, "Stalls")
 UNSTALL = True
+#: sweep the window where the noise cannot be averaged down (MPCPolicy._sweep), at most SWEEP_STEP
+#: tolerances per step for the farthest-travelling plant of the gain band (below 2: a step
+#: shorter than the window cannot jump it; tests/control/test_mpc.py::
+#: test_where_the_noise_cannot_be_averaged_down_the_push_sweeps_through_the_window)
+SWEEP, SWEEP_STEP = True, 1.5
 
 
 #: the MPC's inference when none is given: Levenberg–Marquardt on the one-step loss
@@ -508,6 +523,7 @@ class MPCPolicy(Policy):
         self.reach_end = None         # this step's full-rate rollout to the voltage limit (_at_reach)
         self.started = not self.dv_max_V < self.plant_dv_max_V   # the rate schedule's fast start is over
         self.solve_ms, self.inference_ms = [], []
+        self.open_xi, self.open_V = None, 0.0      # f_a's open-loop state under the applied voltages (_sweep)
 
     def inferred(self) -> dict:
         """The current φ and each inferred field's Cramér–Rao bound on its relative error
@@ -596,6 +612,39 @@ class MPCPolicy(Policy):
                                                       self.recentre_stds * self.estimate_std_m):
             return 0.0
         return math.copysign(min(cfg.creep_V, self.dv_max_V), off)
+
+    def _blind(self) -> bool:
+        """Whether the push is a sweep (:meth:`_sweep`): a first push toward one target where the noise
+        cannot be averaged down to the window (``_unresolvable``), before anything was learnt."""
+        return (self.config.terminal and SWEEP and self.bias is not None and self.side > 0
+                and not self.moved_target and self.schedule is None and self._unresolvable())
+
+    def _sweep(self, V: float) -> float:
+        """ΔV of the sweep: where the observations cannot place the coin within the window in time, the
+        push follows f_a open-loop (from rest, under the voltages applied) and the bias filter's gain
+        band, g ± ``standoff_stds`` of its std: the plant's coin lies between (1 + g_lo) and
+        (1 + g_hi) × f_a's (module docstring, "Sweep"). The full rate while even the farthest-travelling plant stays out of the
+        window after one more full step; then steps that move that plant at most SWEEP_STEP ×
+        tolerance, so that every plant in the band crosses the window rather than jumping it; and V
+        held once even the least-travelling plant is past the window's far edge."""
+        nu = lambda dV: torch.full((1, 1, 1), dV / self.dv_max_V, dtype=torch.float64)
+        if self.open_xi is None:
+            self.open_xi, self.open_V = self.dynamics.state(0.0, 0.0, V, None), V
+        else:
+            self.open_xi, self.open_V = self._roll(self.open_xi, nu(V - self.open_V))[:, -1, :], V
+        x = float(self.open_xi[0, 0]) * X_UNIT_M
+        full = min(self.dv_max_V, self.v_max_V - V)
+        if full <= 0:
+            return 0.0
+        step = float(self._roll(self.open_xi, nu(full))[0, -1, 0]) * X_UNIT_M - x
+        spread = self.standoff_stds * math.sqrt(max(float(self.bias.P[1, 1]), 0.0))
+        g = self.gain_error
+        low, high = max(1.0 + g - spread, 0.0), 1.0 + g + spread
+        if low * x <= self.target_m - self.tolerance_m:
+            return 0.0
+        if high * (x + step) >= self.target_m + self.tolerance_m or step >= 0:
+            return full
+        return min(full, full * SWEEP_STEP * self.tolerance_m / (high * abs(step)))
 
     def _roll(self, xi0, nu):
         """f_a's rollout ξ (B, T+1, n) from ξ0 under ν: the compiled one, else :func:`mpc.rollout`."""
@@ -710,6 +759,9 @@ class MPCPolicy(Policy):
             self.turned = (self.V_peak, x)      # turned back past the target
         xi0 = self.dynamics.state(x, u, V, self.memory)
         self.reach_end = None
+        if self._blind():
+            self.solve_ms.append(1e3 * (time.perf_counter() - start))
+            return self._sweep(V)
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
         # hold (hysteresis): start once the estimate is inside the band, and go on while it stays

@@ -751,3 +751,31 @@ def test_f_as_slope_of_the_landing_reads_the_staircases_trend_not_one_steps_flat
     for V_f in (321.0, 350.5, 383.0, 399.0, 400.0):
         slope = policy._landing_slope(shape, V_f)
         assert slope is not None and abs(slope / trend - 1.0) < 0.25, (V_f, slope)
+
+
+@pytest.mark.parametrize("sweep_on", [True, False])
+def test_where_the_noise_cannot_be_averaged_down_the_push_sweeps_through_the_window(coulomb, sweep, monkeypatch,
+                                                                                    sweep_on):
+    """At σ = 1 mm the estimate cannot place the coin within a 10 µm window in time (``_unresolvable``).
+    The sweep follows f_a open-loop inside the bias filter's gain band and moves even the
+    farthest-travelling plant of the band at most 1.5 tolerances per step, so the coin crosses
+    the window: 4/4 reached in 41–42 iterations at 10 V per step, f_a at 1.2 × the plant's μ_t.
+    Broken once (``SWEEP`` off): the push trusts the noisy estimate, and the coin stops 10–90 µm
+    short in 4 of 4 episodes (1 of 6 reached over 600 steps)."""
+    from deapull.control import mpc_policy
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.surrogate.phi import Phi
+    from deapull.workflows.control import run_episode
+    monkeypatch.setattr(mpc_policy, "SWEEP", sweep_on)
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    truth = plant.truth
+    env = CoinPushEnv(plant, target_m=-0.3e-3, terminate_on_success=False, max_steps=400, noise_std_m=1e-3,
+                      dv_max_V=10.0)
+    config = MPCConfig(horizon=10, iterations=4, inference=None, approach_m=1e-4, standoff_stds=2.0)
+    phi = Phi(float(truth.mass_kg), float(truth.mu_b), 1.2 * float(truth.mu_t))
+    policy = MPCPolicy(coulomb, config, phi=phi)
+    rows = [run_episode(env, policy, seed=k, step_limit=300, hold_steps=10).row for k in range(4)]
+    reached = sum(r["reached"] for r in rows)
+    assert (reached == 4) if sweep_on else (reached == 0), [(r["iterations_to_target"], r["final_x_m"]) for r in rows]
