@@ -93,7 +93,9 @@ g ± ``standoff_stds`` of its std: the full rate while even the farthest-travell
 band stays out of the window after one more full step, then steps that move that plant at most
 ``SWEEP_STEP`` tolerances (a step shorter than the window cannot jump it), and V held once even
 the least-travelling plant is past the window. The coin crosses the window (the paper's
-criterion); where it stops past it is what the noise allows.
+criterion); where it stops past it is what the noise allows. f_a runs at the φ the episode starts
+from; with ``learn`` the hold after a sweep measures the plant's gain against f_a's open-loop end
+(:meth:`MPCPolicy._learn_sweep`), and the next sweep of the task starts its filter there.
 
 **Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
 moves the setpoint (push, push, pull back) re-plans at once.
@@ -364,6 +366,8 @@ class MPCPolicy(Policy):
         #: what earlier episodes of each task taught (:meth:`_learn`): task -> {the schedule's shape and
         #: V_f, the landing line's points and its value x_f and variance x_var at V_f, g and its variance}
         self.learned: dict = {}
+        self.swept: dict = {}        # task key -> the gain a sweep's hold measured {gain, gain_var}
+        self.sweep_hold = None
         self.schedule = None
         #: the scheduled episode's held observations at its end voltage: {V_f, n, sum, open}
         self.landing = None
@@ -477,6 +481,8 @@ class MPCPolicy(Policy):
     def reset(self, spec) -> None:
         cfg = self.config
         self._learn()
+        self._learn_sweep()
+        self.sweep_phi, self.sweep_hold = None, None
         self.moved_target, self.landing = False, None
         self.turned, self.V_peak = None, 0.0    # where a planned episode first turned back past the target: (V, x)
         self.V_started = 0.0                    # where the rate schedule's fast start ended
@@ -619,7 +625,7 @@ class MPCPolicy(Policy):
         return (self.config.terminal and SWEEP and self.bias is not None and self.side > 0
                 and not self.moved_target and self.schedule is None and self._unresolvable())
 
-    def _sweep(self, V: float) -> float:
+    def _sweep(self, V: float, observed: float) -> float:
         """ΔV of the sweep: where the observations cannot place the coin within the window in time, the
         push follows f_a open-loop (from rest, under the voltages applied) and the bias filter's gain
         band, g ± ``standoff_stds`` of its std: the plant's coin lies between (1 + g_lo) and
@@ -628,23 +634,54 @@ class MPCPolicy(Policy):
         tolerance, so that every plant in the band crosses the window rather than jumping it; and V
         held once even the least-travelling plant is past the window's far edge."""
         nu = lambda dV: torch.full((1, 1, 1), dV / self.dv_max_V, dtype=torch.float64)
-        if self.open_xi is None:
-            self.open_xi, self.open_V = self.dynamics.state(0.0, 0.0, V, None), V
-        else:
-            self.open_xi, self.open_V = self._roll(self.open_xi, nu(V - self.open_V))[:, -1, :], V
-        x = float(self.open_xi[0, 0]) * X_UNIT_M
-        full = min(self.dv_max_V, self.v_max_V - V)
-        if full <= 0:
-            return 0.0
-        step = float(self._roll(self.open_xi, nu(full))[0, -1, 0]) * X_UNIT_M - x
+        if self.sweep_phi is None:          # f_a open-loop at the φ the episode starts from, not the estimate's
+            self.sweep_phi = self.dynamics.phi
+        phi, self.dynamics.phi = self.dynamics.phi, self.sweep_phi
+        try:
+            before = None if self.open_xi is None else float(self.open_xi[0, 0]) * X_UNIT_M
+            if self.open_xi is None:
+                self.open_xi, self.open_V = self.dynamics.state(0.0, 0.0, V, None), V
+            else:
+                self.open_xi, self.open_V = self._roll(self.open_xi, nu(V - self.open_V))[:, -1, :], V
+            x = float(self.open_xi[0, 0]) * X_UNIT_M
+            full = min(self.dv_max_V, self.v_max_V - V)
+            step = float(self._roll(self.open_xi, nu(full))[0, -1, 0]) * X_UNIT_M - x if full > 0 else 0.0
+        finally:
+            self.dynamics.phi = phi
         spread = self.standoff_stds * math.sqrt(max(float(self.bias.P[1, 1]), 0.0))
         g = self.gain_error
         low, high = max(1.0 + g - spread, 0.0), 1.0 + g + spread
-        if low * x <= self.target_m - self.tolerance_m:
+        if full <= 0 or low * x <= self.target_m - self.tolerance_m:
+            # held: where f_a's coin stands, the observations measure the plant's travel against it
+            if before == x and x != 0.0:
+                hold = self.sweep_hold
+                if hold is None or hold["V"] != V:
+                    hold = self.sweep_hold = {"V": V, "n": 0, "sum": 0.0}
+                hold["n"], hold["sum"], hold["x_open"] = hold["n"] + 1, hold["sum"] + observed, x
             return 0.0
         if high * (x + step) >= self.target_m + self.tolerance_m or step >= 0:
             return full
-        return min(full, full * SWEEP_STEP * self.tolerance_m / (high * abs(step)))
+        # a step's size rests on f_a's local slope, which a measured gain (a ratio of positions) does
+        # not correct: it is bounded with the filter's prior band
+        steep = 1.0 + g + self.standoff_stds * math.sqrt(self.bias.p_g)
+        return min(full, full * SWEEP_STEP * self.tolerance_m / (max(high, steep) * abs(step)))
+
+    def _learn_sweep(self) -> None:
+        """What a swept episode's hold tells the next sweep of its task (``learn``): the mean of the
+        held observations over f_a's open-loop end, g = x̄ / x_f_a − 1, with variance σ² / (n x_f_a²),
+        combined with what earlier sweeps measured; the next episode's bias filter starts from it."""
+        hold = self.sweep_hold
+        if not (self.config.learn and hold and hold["n"] > 0 and self.spec is not None) or self.moved_target:
+            return
+        x_open = hold["x_open"]
+        gain = hold["sum"] / hold["n"] / x_open - 1.0
+        var = max(self.spec.noise_std_m, 1e-9) ** 2 / (hold["n"] * x_open ** 2)
+        key = self._task_key(self.spec)
+        seen = self.swept.get(key)
+        if seen is not None:
+            w = 1.0 / seen["gain_var"] + 1.0 / var
+            gain, var = (seen["gain"] / seen["gain_var"] + gain / var) / w, 1.0 / w
+        self.swept[key] = {"gain": gain, "gain_var": var}
 
     def _roll(self, xi0, nu):
         """f_a's rollout ξ (B, T+1, n) from ξ0 under ν: the compiled one, else :func:`mpc.rollout`."""
@@ -708,6 +745,9 @@ class MPCPolicy(Policy):
             if self.bias is not None:
                 if self.schedule is not None:
                     return self.bias.reset(x, self.schedule["gain"], self.schedule["gain_var"]), 0.0
+                swept = self.swept.get(self._task_key(self.spec)) if self._blind() else None
+                if swept is not None:
+                    return self.bias.reset(x, swept["gain"], swept["gain_var"]), 0.0
                 return self.bias.reset(x), 0.0
             return (x if self.kalman is None else self.kalman.reset(x)), 0.0
         x0, u0, V0 = self.previous
@@ -761,7 +801,7 @@ class MPCPolicy(Policy):
         self.reach_end = None
         if self._blind():
             self.solve_ms.append(1e3 * (time.perf_counter() - start))
-            return self._sweep(V)
+            return self._sweep(V, observed)
         T = cfg.horizon
         ramp = torch.ones(1, T, 1, dtype=torch.float64)
         # hold (hysteresis): start once the estimate is inside the band, and go on while it stays

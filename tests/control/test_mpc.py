@@ -779,3 +779,30 @@ def test_where_the_noise_cannot_be_averaged_down_the_push_sweeps_through_the_win
     rows = [run_episode(env, policy, seed=k, step_limit=300, hold_steps=10).row for k in range(4)]
     reached = sum(r["reached"] for r in rows)
     assert (reached == 4) if sweep_on else (reached == 0), [(r["iterations_to_target"], r["final_x_m"]) for r in rows]
+
+
+def test_a_repeated_sweep_starts_from_the_gain_its_hold_measured_and_stops_nearer(coulomb, sweep, monkeypatch):
+    """Across episodes of one task at σ = 1 mm, a sweep's hold averages where the coin stopped against
+    f_a's open-loop end: the plant's gain to σ/(√n |x|), which the next episode's bias filter starts
+    from. Its band is narrower, so the next sweep still crosses the window and holds once the
+    least-travelling plant of that band is past it: on the fixture's surrogate at −0.2 mm the coin
+    stops 249, 109 and 39 µm past in episodes 1–3 (on the shipped surrogates the later sweeps also
+    slow down later: docs/control.md). Broken once (the filter not started from it): 249, 214 and
+    248 µm."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.surrogate.phi import Phi
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    truth = plant.truth
+    env = CoinPushEnv(plant, target_m=-0.2e-3, terminate_on_success=False, max_steps=400, noise_std_m=1e-3,
+                      dv_max_V=10.0)
+    config = MPCConfig(horizon=10, iterations=4, inference=None, approach_m=1e-4, standoff_stds=2.0)
+    policy = MPCPolicy(coulomb, config, phi=Phi(float(truth.mass_kg), float(truth.mu_b), 1.2 * float(truth.mu_t)))
+    rows = [run_episode(env, policy, seed=k, step_limit=300, hold_steps=150).row for k in range(3)]
+    (swept,) = policy.swept.values()
+    assert swept["gain_var"] < 0.2 * 0.3 ** 2           # the filter's prior: 0.3²
+    assert all(r["reached"] for r in rows), rows
+    past = [r["overshoot_m"] for r in rows]
+    assert past[2] < past[1] < 0.6 * past[0], past
