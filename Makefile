@@ -61,6 +61,7 @@ control: setup ## closed loop at a preset of control/presets: PRESET=surrogate (
 ifeq ($(PRESET),fem)
 	$(FA_MEM)
 	$(DEAPULL) control --preset fem --data $(DATA) --out $(OUT)/control_fem
+	cp $(OUT)/control_fem/summary.json bench/reference/control_fem.json
 	$(DEAPULL) control --preset fem $(FEM_MULTI) --data $(DATA) --out $(OUT)/control_fem/multi
 else
 	$(FA_PUSH)

@@ -147,7 +147,9 @@ def summary_counts(rows: list[dict]) -> list[dict]:
                     "median_settled_iterations": median(settled_its),
                     "later_episodes": len(later), "later_settled": len(later_its),
                     "later_median_iterations": median(later_its),
-                    "largest_overshoot_m": max(overshoot) if overshoot else None})
+                    "largest_overshoot_m": max(overshoot) if overshoot else None,
+                    "iterations": [r["iterations_to_target"] if r["reached"] else None
+                                   for r in sorted(done, key=lambda r: r.get("episode", 0))]})
     return out
 
 

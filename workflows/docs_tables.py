@@ -11,6 +11,8 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
+
 from deapull.io import atomic_write
 from deapull.paper import ABAQUS_S
 
@@ -228,6 +230,29 @@ def control_goals(result: dict) -> str:
     return "\n".join(rows + [""] + lines)
 
 
+def control_fem(result: dict) -> str:
+    """The MPC on the FEM plants (``make control PRESET=fem``): per plant its target and each
+    episode's iterations, and goal G5 pooled over the plants."""
+    groups = [g for g in result["groups"] if g["policy"] == "mpc"]
+    rows = ["| plant | target (mm) | iterations to the target, by episode | settled | largest overshoot µm |",
+            "|---|---|---|---|---|"]
+    for g in groups:
+        its = " / ".join("–" if n is None else f"{n:.0f}" for n in g.get("iterations", []))
+        rows.append(f"| {g['plant']} | {g['task']} | {its} | {g['settled']}/{g['episodes']} | "
+                    f"{_f(None if g['largest_overshoot_m'] is None else 1e6 * g['largest_overshoot_m'], '.1f')} |")
+    settled = sum(g["settled"] for g in groups)
+    episodes = sum(g["episodes"] for g in groups)
+    its = sorted(n for g in groups for n in g.get("iterations", []) if n is not None)
+    median = float(np.median(its)) if its else None
+    worst = max((g["largest_overshoot_m"] or 0.0) for g in groups) if groups else None
+    plants = len(groups)
+    ok = plants == 8 and settled >= 22 and (worst or 0.0) <= 1e-5 and median is not None and median <= 450
+    line = (f"G5 on {plants} of the 8 FEM plants: settled {settled}/{episodes}, median {_f(median, '.0f')} iterations, "
+            f"largest overshoot {_f(None if worst is None else 1e6 * worst, '.1f')} µm (goal on all 8: ≥ 22/24, "
+            f"overshoot ≤ 10 µm, median ≤ 450, moonshot 300: {'met' if ok else 'not met'}).")
+    return "\n".join(rows + ["", line])
+
+
 #: block name -> (results file, renderer)
 def inference_calibration(result: dict) -> str:
     """What the online inference tells (G6): per loss, prior and set of true coins, the onset's and each
@@ -291,6 +316,7 @@ BLOCKS = {
     "surrogate_pairs": ("bench/reference/surrogate_pairs.json", surrogate_pairs),
     "surrogate_headline": ("bench/reference/surrogate_experiments.json", surrogate_headline),
     "control_goals": ("bench/reference/control_surrogate.json", control_goals),
+    "control_fem": ("bench/reference/control_fem.json", control_fem),
     "inference_calibration": ("bench/reference/inference_calibration.json", inference_calibration),
 }
 

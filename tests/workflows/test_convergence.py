@@ -177,3 +177,18 @@ def test_the_committed_reference_is_its_study_summarised_from_its_own_cases():
         assert again[key] == pytest.approx(published[key], rel=1e-9), key
     for name, lad in again["ladders"].items():
         assert lad["cases"] == published["ladders"][name]["cases"]
+
+
+def test_the_fem_control_block_judges_g5_on_all_eight_plants():
+    """G5 is met only with all eight FEM plants run: ≥ 22/24 settled, overshoot ≤ 10 µm, median ≤ 450."""
+    def group(k, its=(450, 270, 270), settled=3, past=0.0):
+        return {"policy": "mpc", "plant": f"fem:C{k}", "task": "-0.8", "episodes": 3, "settled": settled,
+                "largest_overshoot_m": past, "iterations": list(its)}
+    every = {"groups": [group(k) for k in range(1, 9)]}
+    assert "settled 24/24, median 270" in docs_tables.control_fem(every) and ": met)" in docs_tables.control_fem(every)
+    six = {"groups": every["groups"][:6]}
+    assert "on 6 of the 8" in docs_tables.control_fem(six) and "not met" in docs_tables.control_fem(six)
+    past = {"groups": every["groups"][:7] + [group(8, past=12e-6)]}
+    assert "not met" in docs_tables.control_fem(past)
+    slow = {"groups": [group(k, its=(900, 600, None), settled=2) for k in range(1, 9)]}
+    assert "settled 16/24" in docs_tables.control_fem(slow) and "not met" in docs_tables.control_fem(slow)
