@@ -130,7 +130,7 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 import torch
 
 from deapull.control import mpc, native
-from deapull.control.dynamics import COSTS, U_UNIT_M_S, X_UNIT_M, CoinDynamics, coin_cost
+from deapull.control.dynamics import COSTS, U_UNIT_M_S, V_UNIT_V, X_UNIT_M, CoinDynamics, coin_cost
 from deapull.control.filters import EstimatorConfig
 from deapull.control.inference import InferenceConfig, OnlineInference
 from deapull.control.rollout_inference import RolloutInference
@@ -482,7 +482,8 @@ class MPCPolicy(Policy):
         cfg = self.config
         self._learn()
         self._learn_sweep()
-        self.sweep_phi, self.sweep_hold = None, None
+        # the sweep (_sweep): f_a's φ and open-loop state under the applied voltages, and its hold
+        self.sweep_phi, self.open_xi, self.sweep_hold = None, None, None
         self.moved_target, self.landing = False, None
         self.turned, self.V_peak = None, 0.0    # where a planned episode first turned back past the target: (V, x)
         self.V_started = 0.0                    # where the rate schedule's fast start ended
@@ -529,7 +530,6 @@ class MPCPolicy(Policy):
         self.reach_end = None         # this step's full-rate rollout to the voltage limit (_at_reach)
         self.started = not self.dv_max_V < self.plant_dv_max_V   # the rate schedule's fast start is over
         self.solve_ms, self.inference_ms = [], []
-        self.open_xi, self.open_V = None, 0.0      # f_a's open-loop state under the applied voltages (_sweep)
 
     def inferred(self) -> dict:
         """The current φ and each inferred field's Cramér–Rao bound on its relative error
@@ -629,8 +629,9 @@ class MPCPolicy(Policy):
         """ΔV of the sweep: where the observations cannot place the coin within the window in time, the
         push follows f_a open-loop (from rest, under the voltages applied) and the bias filter's gain
         band, g ± ``standoff_stds`` of its std: the plant's coin lies between (1 + g_lo) and
-        (1 + g_hi) × f_a's (module docstring, "Sweep"). The full rate while even the farthest-travelling plant stays out of the
-        window after one more full step; then steps that move that plant at most SWEEP_STEP ×
+        (1 + g_hi) × f_a's (module docstring, "Sweep"). The full rate while even the
+        farthest-travelling plant stays out of the window after one more full step; then steps
+        that move that plant at most SWEEP_STEP ×
         tolerance, so that every plant in the band crosses the window rather than jumping it; and V
         held once even the least-travelling plant is past the window's far edge."""
         nu = lambda dV: torch.full((1, 1, 1), dV / self.dv_max_V, dtype=torch.float64)
@@ -638,11 +639,12 @@ class MPCPolicy(Policy):
             self.sweep_phi = self.dynamics.phi
         phi, self.dynamics.phi = self.dynamics.phi, self.sweep_phi
         try:
-            before = None if self.open_xi is None else float(self.open_xi[0, 0]) * X_UNIT_M
             if self.open_xi is None:
-                self.open_xi, self.open_V = self.dynamics.state(0.0, 0.0, V, None), V
+                before, self.open_xi = None, self.dynamics.state(0.0, 0.0, V, None)
             else:
-                self.open_xi, self.open_V = self._roll(self.open_xi, nu(V - self.open_V))[:, -1, :], V
+                before = float(self.open_xi[0, 0]) * X_UNIT_M
+                applied = V - float(self.open_xi[0, 2]) * V_UNIT_V
+                self.open_xi = self._roll(self.open_xi, nu(applied))[:, -1, :]
             x = float(self.open_xi[0, 0]) * X_UNIT_M
             full = min(self.dv_max_V, self.v_max_V - V)
             step = float(self._roll(self.open_xi, nu(full))[0, -1, 0]) * X_UNIT_M - x if full > 0 else 0.0

@@ -253,7 +253,6 @@ def control_fem(result: dict) -> str:
     return "\n".join(rows + ["", line])
 
 
-#: block name -> (results file, renderer)
 def inference_calibration(result: dict) -> str:
     """What the online inference tells (G6): per loss, prior and set of true coins, the onset's and each
     field's error and how often the 68 % interval (and the Laplace one beside it) covers the truth."""
@@ -307,6 +306,7 @@ def fem_speed_headline(result: dict) -> str:
                       f"{_f(base.get('wall_s'), '.0f')} s, same run) | {ABAQUS_S:.0f} s (ABAQUS) |"])
 
 
+#: block name -> (results file, renderer)
 BLOCKS = {
     "fem_speed": ("bench/reference/fem_speed.json", fem_speed),
     "fem_speed_headline": ("bench/reference/fem_speed.json", fem_speed_headline),
