@@ -138,7 +138,8 @@ class FEMPlant:
 
     The mesh and the coin's mass are made once; every ``reset`` builds a fresh problem and
     :class:`~deapull.fem_solver.stepping.Stepper` and places the DEA on the coin at 0 V
-    (``start(0)``). A step that the FEM cannot solve raises :class:`PlantFailed`. The
+    (``start(0)``; from the second reset on, from the first one's placement, kept in ``work_dir``).
+    A step that the FEM cannot solve raises :class:`PlantFailed`. The
     episode's accepted FEM records are kept (:attr:`records`), and :meth:`save` writes them
     as a dataset of the FEM's contract: an FEM run under the controller's voltages, which
     the surrogates train on like any other run (``deapull control --set control.save_fem_runs=DIR``).
@@ -155,7 +156,8 @@ class FEMPlant:
         if work_dir is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="deapull-fem-plant-")
             work_dir = self._tmp.name
-        self.simulation = Simulation.from_scene(scene, mesh_dir=Path(work_dir) / "mesh", comm=self.comm)
+        self._work = Path(work_dir)
+        self.simulation = Simulation.from_scene(scene, mesh_dir=self._work / "mesh", comm=self.comm)
         self.mesh_summary, self.mass_kg = self.simulation.mesh_summary, self.simulation.mass_kg
         self.truth = Phi(mass_kg=self.mass_kg, mu_b=scene.coin.mu_b, mu_t=scene.coin.mu_t)
         self.stepper = self.problem = None
@@ -167,7 +169,7 @@ class FEMPlant:
     def reset(self, seed: int | None = None) -> np.ndarray:
         from deapull.fem_solver.stepping import SolveFailed  # lazy: dolfinx loads only with a FEM plant
         self.problem = self.simulation.problem()
-        self.stepper = self.simulation.stepper(self.problem, progress=False)
+        self.stepper = self.simulation.stepper(self.problem, progress=False, placement_cache=self._work / "placements")
         self.records, self._started = [], time.perf_counter()
         try:
             return self._keep(self.stepper.start(0.0))

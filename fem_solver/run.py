@@ -93,7 +93,8 @@ def solve_scene(scene, out_dir, comm=MPI.COMM_WORLD, fields_every: int = 0, prog
         for line in sharp_geometry_warnings(sim.scene):
             log.warning("%s: %s", name, line)
     writer = FieldWriter(problem, out_dir / f"{name}_fields.xdmf", fields_every) if fields_every > 0 else None
-    stepper = sim.stepper(problem, progress=progress, on_step=writer)
+    # the setups of a scene share the mesh and its placement (fem_solver.simulation.PlacementCache)
+    stepper = sim.stepper(problem, progress=progress, on_step=writer, placement_cache=out_dir / "meshes" / "placements")
     try:
         records = stepper.run()
     finally:
@@ -137,6 +138,7 @@ def write_run(path, sim, problem, stepper, records, wall_s: float, name: str, pr
         "coin_volume_rel_error": summary.get("coin_volume_rel_error", ""),
         "mpi_ranks": comm.size, "git_commit": provenance.git_commit(), "wall_time_total_s": wall_s,
         "coin_travel_m": coin_travel(records), "coin_motion": coin_motion(records), "steps": len(records),
+        "placement": stepper.placement,
         "load_protocol": protocol or scene.load.protocol,
         **provenance.package_versions(),
     }

@@ -13,9 +13,13 @@ CLI's ``solve`` and the sweep) and the FEM plant of ``deapull.control.plants`` b
 """
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from mpi4py import MPI
 
 from deapull import scene as scenes
@@ -42,6 +46,56 @@ def resolve_scene(scene: Scene | str | Path, setup: str | None = None) -> Scene:
                              f"at setup {scene.setup!r}: pass the scene's name to choose a setup")
         return scene
     return scenes.load(scene, setup=setup)
+
+
+#: scene keys the placement does not depend on (it is frictionless, with the coin at rest): left out
+#: of its cache key, so that a scene's setups (C1..C8 differ in these alone) share one placement
+PLACEMENT_FREE_KEYS = (("coin", "density_kg_m3"), ("coin", "mu_t"), ("coin", "mu_b"), ("table", "mu_g"))
+
+
+class PlacementCache:
+    """The placed state at t = 0 of one meshed scene, kept in ``folder`` for the runs that share it.
+
+    The key is the SHA-256 of the mesh file and of the resolved scene without its ``[scene]`` and
+    ``[load]`` sections and :data:`PLACEMENT_FREE_KEYS`; a state is stored per initial voltage and
+    per rank of ``comm`` (``placement-<key>-<V>V-<rank>of<size>.npy``), written to a temporary file
+    and renamed. :meth:`Stepper.start` takes it only as the first guess of the placement's last
+    solve, so a stale or foreign state costs that solve and never a wrong placement.
+    """
+
+    def __init__(self, folder: str | Path, scene: Scene, mesh_path: Path, comm):
+        self.folder, self.comm = Path(folder), comm
+        d = scene.to_dict()
+        d.pop("scene", None), d.pop("load", None)
+        for section, key in PLACEMENT_FREE_KEYS:
+            if section in d:
+                d[section].pop(key, None)
+        digest = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode())
+        digest.update(Path(mesh_path).read_bytes())
+        self.key = digest.hexdigest()[:16]
+
+    def _path(self, V: float) -> Path:
+        return self.folder / f"placement-{self.key}-{V:.6g}V-{self.comm.rank}of{self.comm.size}.npy"
+
+    def load(self, V: float, size: int):
+        """This rank's stored state at initial voltage ``V`` (an array of ``size`` values), or None
+        on every rank unless every rank has one."""
+        path = self._path(V)
+        try:
+            state = np.load(path) if path.is_file() else None
+        except (OSError, ValueError):
+            state = None
+        have = state is not None and state.shape == (size,) and bool(np.isfinite(state).all())
+        return state if self.comm.allreduce(have, op=MPI.LAND) else None
+
+    def save(self, V: float, state: np.ndarray) -> None:
+        """Store this rank's ``state`` at initial voltage ``V`` (atomically)."""
+        path = self._path(V)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            np.save(f, np.asarray(state))
+        os.replace(tmp, path)
 
 
 @dataclass
@@ -83,6 +137,11 @@ class Simulation:
         """A fresh problem on the mesh (the state at rest)."""
         return DEAProblem(self.scene, self.mesh, self.cell_tags, self.facet_tags)
 
-    def stepper(self, problem: DEAProblem | None = None, progress: bool = True, on_step=None) -> Stepper:
-        """A stepper on ``problem`` (default: a fresh one) with the coin's mass."""
-        return Stepper(problem or self.problem(), self.mass_kg, progress=progress, on_step=on_step)
+    def stepper(self, problem: DEAProblem | None = None, progress: bool = True, on_step=None,
+                placement_cache: str | Path | None = None) -> Stepper:
+        """A stepper on ``problem`` (default: a fresh one) with the coin's mass; with
+        ``placement_cache`` (a folder) it reuses and keeps the placement there (:class:`PlacementCache`)."""
+        cache = None if placement_cache is None else PlacementCache(placement_cache, self.scene, self.mesh_path,
+                                                                    self.comm)
+        return Stepper(problem or self.problem(), self.mass_kg, progress=progress, on_step=on_step,
+                       placement_cache=cache)

@@ -179,8 +179,10 @@ class Stepper:
     #: (:meth:`_friction_continuation`) before the long try and the cut-backs
     FRICTION_CONTINUATION = True
 
-    def __init__(self, problem, mass_kg=None, progress: bool = True, on_step=None):
+    def __init__(self, problem, mass_kg=None, progress: bool = True, on_step=None, placement_cache=None):
         self.p, self.scene = problem, problem.scene
+        self.placement_cache = placement_cache    # a simulation.PlacementCache, or None
+        self.placement = "solved"                 # or "reused": how start() placed the DEA
         self.mass_kg = mass_kg
         self.coin = CoinState()
         self.records: list[StepRecord] = []
@@ -305,7 +307,9 @@ class Stepper:
         The DEA is placed on the obstacle without friction: friction acts on slip during a
         step, and placement is not a step of the protocol. Gravity is applied by
         continuation; a continuation step below :data:`PLACEMENT_MIN_STEP` raises
-        :class:`SolveFailed`.
+        :class:`SolveFailed`. With a :attr:`placement_cache` that holds this mesh's placement
+        (another setup's: it does not depend on the coin's density or friction), one solve from
+        it replaces the continuation (:attr:`placement` says which).
         """
         if self.started:
             raise RuntimeError("Stepper.start() was already called")
@@ -313,6 +317,46 @@ class Stepper:
         V = scene_protocol(self.scene)(0.0) if V0 is None else float(V0)
         self.p.enable_friction(False)
         dt = self.scene.time.dt_initial_s
+        reused = self._reuse_placement(V, dt)
+        its, cits, forces = reused if reused is not None else self._place(V, dt)
+        if reused is None and self.placement_cache is not None:
+            self.placement_cache.save(V, self.p.w.x.array)
+        self.placement = "solved" if reused is None else "reused"
+        self.coin = CoinState()
+        residual = self._balance_residual(self.coin, self.coin, 0.0)   # as solved: without friction
+        self.p.enable_friction(True)
+        rec = self._record(0.0, V, 0.0, its, cits, 0, _time.perf_counter() - start, forces, residual)
+        if rec is None:
+            raise SolveFailed(0.0, V, "NON_FINITE_OUTPUT", -1, self.records)
+        self.p.accept()
+        self.p.accept()  # no history yet: the predictor starts from a constant state
+        self.started = True
+        return self._keep(rec)
+
+    def _reuse_placement(self, V: float, dt: float):
+        """The placement from :attr:`placement_cache`: its state as the first guess of the placement's
+        last solve (full gravity and penalty, at ``V``), kept when that solve converges; returns
+        (Newton iterations, coupling iterations, forces), or None (no cache, no state, or the solve
+        failed: the problem is then back at rest)."""
+        cached = None if self.placement_cache is None else self.placement_cache.load(V, self.p.w.x.array.size)
+        if cached is None:
+            return None
+        rest = self.p.w.x.array.copy()
+        self.p.w.x.array[:] = cached
+        self.p.gravity_scale.value = 1.0
+        newton = self.p.placement_newton() if self.PLACEMENT_FULL_NEWTON else contextlib.nullcontext()
+        with self.p.newton_max_it(min(PLACEMENT_MAX_IT, self.scene.solver.newton_max_it)), newton:
+            ok, reason, its, cits, _, forces = self._coupled_solve(V, dt)
+        if ok:
+            self._info("placement reused from %s (%d Newton iterations)", self.placement_cache.folder, its)
+            return its, cits, forces
+        self._info("the cached placement did not solve (%s); placing from rest", reason)
+        self.p.w.x.array[:] = rest
+        return None
+
+    def _place(self, V: float, dt: float):
+        """The DEA placed from rest by continuation: gravity at a soft penalty, the penalty raised,
+        then the initial voltage; returns (Newton iterations, coupling iterations, forces)."""
 
         def gravity(scale):
             self.p.gravity_scale.value = scale
@@ -337,16 +381,7 @@ class Stepper:
             k_its, cits, forces = self._continuation("placement at the initial voltage",
                                                      lambda scale: self._coupled_solve(scale * V, dt), V)
             its += k_its
-        self.coin = CoinState()
-        residual = self._balance_residual(self.coin, self.coin, 0.0)   # as solved: without friction
-        self.p.enable_friction(True)
-        rec = self._record(0.0, V, 0.0, its, cits, 0, _time.perf_counter() - start, forces, residual)
-        if rec is None:
-            raise SolveFailed(0.0, V, "NON_FINITE_OUTPUT", -1, self.records)
-        self.p.accept()
-        self.p.accept()  # no history yet: the predictor starts from a constant state
-        self.started = True
-        return self._keep(rec)
+        return its, cits, forces
 
     def advance(self, V_end: float, dt: float) -> StepRecord:
         """One step from the current time t to t + dt, the voltage going linearly to ``V_end``.

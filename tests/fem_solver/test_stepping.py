@@ -542,3 +542,42 @@ def test_the_clamp_reaction_read_off_the_solve_is_a_fresh_assembly_and_never_sta
     now = p.clamp_reaction()
     assert now == pytest.approx(fresh(), rel=1e-12, abs=1e-15)
     assert abs(now[0] - before[0]) + abs(now[1] - before[1]) > 1e-9
+
+
+def _placed(tmp_path, name, setup, cache, *overrides):
+    sc = scenes.load("coin_pull", setup=setup, overrides=(*C3_TEST, *overrides))
+    sim = Simulation.from_scene(sc, mesh_dir=tmp_path / name)
+    stepper = sim.stepper(progress=False, placement_cache=cache)
+    rec = stepper.start()
+    return stepper, rec, sim
+
+
+def test_the_setups_share_one_placement_and_a_cached_state_is_only_a_first_guess(tmp_path):
+    """C1..C8 differ in the coin's density and friction, which the frictionless placement with the
+    coin at rest does not see. C6 placed from C3's cached state is ``reused`` in fewer Newton
+    iterations and lands where C6 placed alone does (to the Newton tolerance). A cached state that is
+    not the placement (here C3's scaled by 1.5) is only the last solve's first guess: the placement
+    still lands there. Another penalty is another key. Broken once: the reused state kept without
+    its solve (the scaled state's tip 50 % off)."""
+    from deapull.fem_solver.simulation import PlacementCache
+    cache = tmp_path / "placements"
+    c3, c3_rec, c3_sim = _placed(tmp_path, "C3", "C3", cache)
+    alone, alone_rec, _ = _placed(tmp_path, "alone", "C6", None)
+    reused, reused_rec, c6_sim = _placed(tmp_path, "C6", "C6", cache)
+    assert (c3.placement, alone.placement, reused.placement) == ("solved", "solved", "reused")
+    assert reused_rec.newton_iterations < alone_rec.newton_iterations
+    tip = alone.p.tip_displacement()
+    atol = alone.scene.solver.newton_atol
+    assert np.abs(reused.p.tip_displacement() - tip).max() <= 1e-8 * np.abs(tip).max()
+    assert abs(reused_rec.Fy - alone_rec.Fy) <= atol
+
+    (stored,) = cache.glob("placement-*.npy")
+    np.save(stored, 1.5 * np.load(stored))
+    foreign, foreign_rec, _ = _placed(tmp_path, "foreign", "C6", cache)
+    assert np.abs(foreign.p.tip_displacement() - tip).max() <= 1e-8 * np.abs(tip).max()
+    assert abs(foreign_rec.Fy - alone_rec.Fy) <= atol
+
+    key = PlacementCache(cache, c3_sim.scene, c3_sim.mesh_path, c3_sim.comm).key
+    assert PlacementCache(cache, c6_sim.scene, c6_sim.mesh_path, c6_sim.comm).key == key
+    stiffer = scenes.load("coin_pull", setup="C3", overrides=(*C3_TEST, "contact.penalty_N_m3=2.24e9"))
+    assert PlacementCache(cache, stiffer, c3_sim.mesh_path, c3_sim.comm).key != key
