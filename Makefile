@@ -63,6 +63,7 @@ ifeq ($(PRESET),fem)
 	$(DEAPULL) control --preset fem --data $(DATA) --out $(OUT)/control_fem
 	cp $(OUT)/control_fem/summary.json bench/reference/control_fem.json
 	$(DEAPULL) control --preset fem $(FEM_MULTI) --data $(DATA) --out $(OUT)/control_fem/multi
+	cp $(OUT)/control_fem/multi/summary.json bench/reference/control_fem_multi.json
 else
 	$(FA_PUSH)
 	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
@@ -71,7 +72,7 @@ else
 	cp $(OUT)/control/summary.json bench/reference/control_surrogate.json
 endif
 
-FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7
+FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --episodes 1
 FA_PUSH := @test -f $(MODELS)/fa_push/model.json || ($(MAKE) --no-print-directory sweep PROTOCOLS=push && \
 	$(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 --model f-coulomb --epochs 300 \
 	--runs $(DATA)/push --out $(MODELS)/fa_push)

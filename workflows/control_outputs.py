@@ -140,7 +140,7 @@ def summary_counts(rows: list[dict]) -> list[dict]:
         later_its = [r["iterations_to_target"] for r in later if r["settled"]]
         overshoot = [r["overshoot_m"] for r in done if r.get("overshoot_m") is not None]
         median = (lambda v: float(np.median(v)) if v else None)  # noqa: E731
-        out.append({"policy": policy, "plant": plant, "noise_std_m": float(noise), "task": task,
+        entry = {"policy": policy, "plant": plant, "noise_std_m": float(noise), "task": task,
                     "episodes": len(done), "unreachable": len(group) - len(done), "reached": len(its),
                     "settled": len(settled_its), "median_iterations": median(its),
                     "settled_within_100": sum(n <= 100 for n in settled_its),
@@ -149,7 +149,12 @@ def summary_counts(rows: list[dict]) -> list[dict]:
                     "later_median_iterations": median(later_its),
                     "largest_overshoot_m": max(overshoot) if overshoot else None,
                     "iterations": [r["iterations_to_target"] if r["reached"] else None
-                                   for r in sorted(done, key=lambda r: r.get("episode", 0))]})
+                                   for r in sorted(done, key=lambda r: r.get("episode", 0))]}
+        if ";" in str(task):   # a multi-setpoint task: each episode's setpoints settled and iterations to each
+            entry["setpoints_settled"] = [int(r["setpoints_settled"]) for r in done]
+            entry["iterations_per_setpoint"] = [[None if n in ("None", None) else int(n)
+                                                 for n in str(r["iterations_per_setpoint"]).split(";")] for r in done]
+        out.append(entry)
     return out
 
 

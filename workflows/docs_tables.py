@@ -253,6 +253,24 @@ def control_fem(result: dict) -> str:
     return "\n".join(rows + ["", line])
 
 
+def control_fem_multi(result: dict) -> str:
+    """The multi-setpoint task on an FEM plant (``make control PRESET=fem``'s second command): per
+    episode the iterations to each setpoint and how many settled."""
+    rows = ["| plant | setpoints (mm) | episode | iterations to each setpoint | setpoints settled | largest overshoot µm |",
+            "|---|---|---|---|---|---|"]
+    every = total = 0
+    for g in (g for g in result["groups"] if g["policy"] == "mpc"):
+        n = len(g["task"].split(";"))
+        for k, (its, settled) in enumerate(zip(g["iterations_per_setpoint"], g["setpoints_settled"])):
+            rows.append(f"| {g['plant']} | {g['task'].replace(';', ', ')} | {k + 1} | "
+                        f"{' / '.join('–' if i is None else str(i) for i in its)} | {settled}/{n} | "
+                        f"{_f(None if g['largest_overshoot_m'] is None else 1e6 * g['largest_overshoot_m'], '.1f')} |")
+            every, total = every + (settled == n), total + 1
+    line = (f"Every setpoint settled in {every} of {total} episode(s) (goal: settled at every setpoint, with G5's "
+            f"setting: {'met' if total and every == total else 'not met'}).")
+    return "\n".join(rows + ["", line])
+
+
 def inference_calibration(result: dict) -> str:
     """What the online inference tells (G6): per loss, prior and set of true coins, the onset's and each
     field's error and how often the 68 % interval (and the Laplace one beside it) covers the truth."""
@@ -317,6 +335,7 @@ BLOCKS = {
     "surrogate_headline": ("bench/reference/surrogate_experiments.json", surrogate_headline),
     "control_goals": ("bench/reference/control_surrogate.json", control_goals),
     "control_fem": ("bench/reference/control_fem.json", control_fem),
+    "control_fem_multi": ("bench/reference/control_fem_multi.json", control_fem_multi),
     "inference_calibration": ("bench/reference/inference_calibration.json", inference_calibration),
 }
 

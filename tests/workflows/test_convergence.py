@@ -192,3 +192,23 @@ def test_the_fem_control_block_judges_g5_on_all_eight_plants():
     assert "not met" in docs_tables.control_fem(past)
     slow = {"groups": [group(k, its=(900, 600, None), settled=2) for k in range(1, 9)]}
     assert "settled 16/24" in docs_tables.control_fem(slow) and "not met" in docs_tables.control_fem(slow)
+
+
+def test_the_multi_setpoint_block_is_met_only_where_every_setpoint_settled():
+    """The push-push-pull-back task's rows come from the episodes' rows (summary_counts keeps each
+    episode's setpoints settled and iterations to each), and the goal needs every setpoint settled."""
+    from deapull.workflows.control_outputs import summary_counts
+
+    def row(episode, settled, its):
+        return {"policy": "mpc", "plant": "fem:C3", "noise_std_m": 1e-4, "setpoints_mm": "-0.5;-1;-0.7",
+                "episode": episode, "status": "ok", "reached": True, "settled": settled == 3,
+                "iterations_to_target": its[0], "overshoot_m": 2e-6, "setpoints_settled": settled,
+                "iterations_per_setpoint": ";".join(str(i) for i in its)}
+    good = {"groups": summary_counts([row(0, 3, (300, 120, 90))])}
+    assert good["groups"][0]["iterations_per_setpoint"] == [[300, 120, 90]]
+    text = docs_tables.control_fem_multi(good)
+    assert "| fem:C3 | -0.5, -1, -0.7 | 1 | 300 / 120 / 90 | 3/3 | 2.0 |" in text and ": met)" in text
+    short = {"groups": summary_counts([row(0, 3, (300, 120, 90)), row(1, 2, (280, 110, None))])}
+    assert "280 / 110 / –" in docs_tables.control_fem_multi(short)
+    assert "in 1 of 2 episode(s)" in docs_tables.control_fem_multi(short)
+    assert "not met" in docs_tables.control_fem_multi(short)
