@@ -695,18 +695,14 @@ class DEAProblem:
         return self.contact_point_stats()[1]
 
     def contact_point_stats(self) -> tuple[int, float]:
-        """(:meth:`active_contact_points`, :meth:`max_penetration_at_points`) from one evaluation
-        of the contact integral's quadrature points (the record takes both)."""
+        """(the number of the contact integral's quadrature points that touch the obstacle, i.e. carry
+        Fx and Fy, in the modelled mesh; :meth:`max_penetration_at_points`) from one evaluation of
+        those points (the record takes both)."""
         if self.contact is None:
             return 0, 0.0
         depth = self._obstacle_depth_at_points()
         n = int(self.comm.allreduce(int(np.count_nonzero(depth > 0)), op=MPI.SUM))
         return n, self.comm.allreduce(float(np.max(depth, initial=0.0)), op=MPI.MAX)
-
-    def active_contact_points(self) -> int:
-        """Number of the contact integral's quadrature points that touch the obstacle (penetration
-        > 0: the points that carry Fx and Fy), in the modelled mesh (a half model: its half)."""
-        return self.contact_point_stats()[0]
 
     def table_penetration(self) -> float:
         """Largest penetration of the DEA's underside into the table (m) at the table integral's
@@ -722,14 +718,6 @@ class DEAProblem:
         incompressible solution) and the DEA's relative change of volume, in one assembly."""
         mean_abs, net = self.volume_batch.values(self.comm) / self.volume
         return float(mean_abs), float(net)
-
-    def mean_volume_change(self) -> float:
-        """Volume-averaged |J − 1| (0 for an exactly incompressible solution)."""
-        return self.volume_changes()[0]
-
-    def net_volume_change(self) -> float:
-        """(∫ J dX − V₀) / V₀: the DEA's relative change of volume."""
-        return self.volume_changes()[1]
 
     def num_dofs(self) -> int:
         return self.W.dofmap.index_map.size_global * self.W.dofmap.index_map_bs

@@ -219,12 +219,6 @@ def _label(kind: str) -> str:
     return KINDS[kind].label
 
 
-def _mean(rows: list[dict], kind: str, key: str):
-    """Mean of ``key`` over the sets where ``kind`` did not diverge (None if none), averaged over the
-    repeats."""
-    return _mean_spread(rows, kind, key)[0]
-
-
 def _mean_spread(rows: list[dict], kind: str, key: str) -> tuple:
     """(mean over repeats, standard deviation over repeats) of each repeat's mean of ``key`` over
     the sets where ``kind`` did not diverge; (None, None) if none."""
