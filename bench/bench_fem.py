@@ -52,6 +52,8 @@ def mpirun_env() -> dict:
 
 
 def solve(out: Path, fidelity: str, overrides=(), cflags: str | None = None) -> dataset.Run:
+    if out.exists():     # from scratch: no placement kept from an earlier run (fem_solver.simulation.PlacementCache)
+        shutil.rmtree(out)
     cmd = [sys.executable, "-m", "deapull.workflows", "solve", "--scene", "coin_pull", "--setup", "C3", "--out", str(out)]
     env = dict(os.environ, **{FORM_CFLAGS_ENV: cflags}) if cflags else None
     run(cmd + (["--fidelity", fidelity] if fidelity else []) + [a for o in overrides for a in ("--set", o)], env=env)
