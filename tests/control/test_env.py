@@ -199,7 +199,8 @@ def test_fem_plant_episode_moves_the_coin_as_the_fems_own_stepping(tmp_path):
     """On a tiny mesh: the env + FEM plant, started at 150 V (the env's ramp of 0.5 V per
     step from 0 V), then driven by +3 V per step for 14 steps, against the FEM's own
     start() / advance(V(t), 1 ms) with V(t) the scene's table protocol through the same
-    points: the same coin positions to round-off, and the coin slides toward −x."""
+    points: the same coin positions to round-off, and the coin slides toward −x. The next reset
+    reuses the placement (broken once, the plant without its placement cache: 'solved')."""
     from deapull import scene as scenes
     from deapull.control.plants import FEMPlant
     from deapull.control.policies import HeuristicPolicy
@@ -224,3 +225,9 @@ def test_fem_plant_episode_moves_the_coin_as_the_fems_own_stepping(tmp_path):
     assert x_own[-1] < -2e-5                                      # it slid (measured: -0.066 mm)
     np.testing.assert_allclose(episode.x_m, x_own, rtol=0, atol=1e-9 * abs(x_own[-1]))
     assert plant.truth.mass_kg == pytest.approx(plant.mass_kg) and plant.truth.mu_t == scene.coin.mu_t
+    # the next episode starts from the first one's placement (kept in work_dir), to the Newton tolerance
+    placed = plant.records[0] if plant.records[0].t == 0.0 else None
+    assert placed is not None and plant.stepper.placement == "solved"
+    plant.reset()
+    assert plant.stepper.placement == "reused"
+    assert plant.records[0].Fy == pytest.approx(placed.Fy, abs=scene.solver.newton_atol)
