@@ -344,8 +344,7 @@ class Stepper:
         rest = self.p.w.x.array.copy()
         self.p.w.x.array[:] = cached
         self.p.gravity_scale.value = 1.0
-        newton = self.p.placement_newton() if self.PLACEMENT_FULL_NEWTON else contextlib.nullcontext()
-        with self.p.newton_max_it(min(PLACEMENT_MAX_IT, self.scene.solver.newton_max_it)), newton:
+        with self._placement_newton():
             ok, reason, its, cits, _, forces = self._coupled_solve(V, dt)
         if ok:
             self._info("placement reused from %s (%d Newton iterations)", self.placement_cache.folder, its)
@@ -603,6 +602,14 @@ class Stepper:
             return False, f"BRANCH_JUMP (free end moved {move * 1e3:.3g} mm in one step)"
         return True, reason
 
+    @contextlib.contextmanager
+    def _placement_newton(self):
+        """Newton as the placement runs it: :meth:`DEAProblem.placement_newton` (with
+        :attr:`PLACEMENT_FULL_NEWTON`) and at most :data:`PLACEMENT_MAX_IT` iterations."""
+        newton = self.p.placement_newton() if self.PLACEMENT_FULL_NEWTON else contextlib.nullcontext()
+        with self.p.newton_max_it(min(PLACEMENT_MAX_IT, self.scene.solver.newton_max_it)), newton:
+            yield
+
     def _continuation(self, what: str, solve_at, V: float):
         """Solve ``solve_at(scale)`` for scale 0 → 1 in growing steps (the first
         ``time.placement_first_step``), cut by 4 on failure, with :meth:`DEAProblem.placement_newton`.
@@ -614,8 +621,7 @@ class Stepper:
         good = self.p.w.x.array.copy()
         while done < 1.0:
             scale = min(1.0, done + step)
-            newton = self.p.placement_newton() if self.PLACEMENT_FULL_NEWTON else contextlib.nullcontext()
-            with self.p.newton_max_it(min(PLACEMENT_MAX_IT, self.scene.solver.newton_max_it)), newton:
+            with self._placement_newton():
                 ok, reason, k_its, cits, coin, forces = solve_at(scale)
             its += k_its
             if ok:

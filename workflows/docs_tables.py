@@ -24,6 +24,11 @@ def _f(value, fmt: str) -> str:
     return "–" if value is None or (isinstance(value, float) and not math.isfinite(value)) else format(value, fmt)
 
 
+def _um(value_m) -> str:
+    """A length in m shown in µm to 0.1 (– for None)."""
+    return _f(None if value_m is None else 1e6 * value_m, ".1f")
+
+
 def contact_reference(result: dict) -> str:
     """The contact ladders: per case, then per ladder its order, Richardson value and GCI; the bound."""
     t = result["time_s"]
@@ -192,7 +197,7 @@ def control_goals(result: dict) -> str:
                     f"{g['settled']}/{g['episodes']} | {_f(g['median_iterations'], '.0f')} | "
                     f"{g['settled_within_100']} | {g['later_settled']}/{g['later_episodes']} "
                     f"({_f(g['later_median_iterations'], '.0f')}) | "
-                    f"{_f(None if g['largest_overshoot_m'] is None else 1e6 * g['largest_overshoot_m'], '.1f')} |")
+                    f"{_um(g['largest_overshoot_m'])} |")
     mpc = [g for g in groups if g["policy"] == "mpc"]
 
     def at(noise):
@@ -239,7 +244,7 @@ def control_fem(result: dict) -> str:
     for g in groups:
         its = " / ".join("–" if n is None else f"{n:.0f}" for n in g.get("iterations", []))
         rows.append(f"| {g['plant']} | {g['task']} | {its} | {g['settled']}/{g['episodes']} | "
-                    f"{_f(None if g['largest_overshoot_m'] is None else 1e6 * g['largest_overshoot_m'], '.1f')} |")
+                    f"{_um(g['largest_overshoot_m'])} |")
     settled = sum(g["settled"] for g in groups)
     episodes = sum(g["episodes"] for g in groups)
     its = sorted(n for g in groups for n in g.get("iterations", []) if n is not None)
@@ -264,7 +269,7 @@ def control_fem_multi(result: dict) -> str:
         for k, (its, settled) in enumerate(zip(g["iterations_per_setpoint"], g["setpoints_settled"])):
             rows.append(f"| {g['plant']} | {g['task'].replace(';', ', ')} | {k + 1} | "
                         f"{' / '.join('–' if i is None else str(i) for i in its)} | {settled}/{n} | "
-                        f"{_f(None if g['largest_overshoot_m'] is None else 1e6 * g['largest_overshoot_m'], '.1f')} |")
+                        f"{_um(g['largest_overshoot_m'])} |")
             every, total = every + (settled == n), total + 1
     line = (f"Every setpoint settled in {every} of {total} episode(s) (goal: settled at every setpoint, with G5's "
             f"setting: {'met' if total and every == total else 'not met'}).")
