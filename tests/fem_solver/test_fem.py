@@ -217,6 +217,8 @@ def test_sweep_resumes_after_interruption(tmp_path):
     assert "C2" in done.stdout and (tmp_path / "C2.nc").exists()
     ds = xr.open_dataset(tmp_path / "C2.nc")
     assert ds.attrs["complete"] == 1 and ds.attrs["setup"] == "C2"
+    # C2 starts from C1's placement, kept on disk through the kill (the datasets say which)
+    assert xr.open_dataset(tmp_path / "C1.nc").attrs["placement"] == "solved" and ds.attrs["placement"] == "reused"
 
 
 def test_xdmf_fields_for_paraview(tmp_path):
