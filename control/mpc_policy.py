@@ -766,10 +766,10 @@ class MPCPolicy(Policy):
         x_pred, u_pred = float(pred[0]) * X_UNIT_M, float(pred[1]) * U_UNIT_M_S
         if self.bias is not None:
             x_obs = x
-            x = self.bias.update(x_pred - x0, x_obs, held=abs(u0) < 1e-9)
+            x = self.bias.update(x_pred - x0, x_obs, held=abs(u0) < 1e-9, fall_V=max(V0 - V, 0.0))
             if not self.noisy:
                 return x_obs, (x_obs - x0) / self.dt
-            return x, (1.0 + self.bias.gain) * u_pred
+            return x, u_pred
         if self.kalman is not None:
             x = self.kalman.update(x_pred, x)
         return x, u_pred

@@ -633,8 +633,9 @@ def test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance(
 def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_episodes_get_faster(coulomb, sweep, monkeypatch):
     """``learn`` (iterative learning control): episode 1 at σ = 0.1 mm with the stand-off ends settled
     and leaves its final voltage and g; the next episodes play the rate schedule to the voltage where
-    the landing line meets the target, and hold: on the fixture 451 iterations, then 69, 68, 68, none
-    past the window. Another noise is another task. Broken once: the schedule left out (the second
+    the landing line meets the target, and hold: on the fixture 91 iterations (held 300 steps, so that
+    its estimate averages down to a landing), then 71, 71, none past the window, where the same
+    policy without learning takes 91, 484 and 232. Another noise is another task. Broken once: the schedule left out (the second
     episode took as long as the first); and once with a turn counted wherever V first fell (short
     of the target too), so that the line started from where episode 1 turned on its way (545
     iterations for the second)."""
@@ -648,7 +649,7 @@ def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_episodes_
     env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=2000, noise_std_m=1e-4)
     config = MPCConfig(horizon=10, iterations=4, inference=None, standoff_stds=2.0, approach_m=1e-4)
     policy = MPCPolicy(coulomb, config, phi=plant.truth)
-    first = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=50).row
+    first = run_episode(env, policy, seed=0, step_limit=1800, hold_steps=300).row
     gain, V_end = policy.bias.gain, policy.previous[2]
     assert policy.learned == {}                  # learnt when the next episode starts
     second = run_episode(env, policy, seed=1, step_limit=1800, hold_steps=50).row
@@ -657,11 +658,12 @@ def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_episodes_
     third = run_episode(env, policy, seed=2, step_limit=1800, hold_steps=50).row
     rows = (first, second, third)
     assert all(r["settled"] and r["overshoot_m"] < 1e-5 for r in rows), rows
-    assert max(second["iterations_to_target"], third["iterations_to_target"]) < 0.5 * first["iterations_to_target"]
+    learnt = max(second["iterations_to_target"], third["iterations_to_target"])
+    assert learnt < 0.9 * first["iterations_to_target"]
     other = MPCPolicy(coulomb, replace(config, learn=False), phi=plant.truth)
     for seed in range(3):
-        again = run_episode(env, other, seed=seed, step_limit=1800, hold_steps=50).row
-    assert again["iterations_to_target"] > 0.5 * first["iterations_to_target"] and other.learned == {}
+        again = run_episode(env, other, seed=seed, step_limit=1800, hold_steps=300 if seed == 0 else 50).row
+    assert again["iterations_to_target"] > 1.1 * learnt and other.learned == {}
 
 
 def test_the_stand_off_does_not_wait_where_the_noise_cannot_be_averaged_down_in_time(coulomb, sweep):
@@ -806,3 +808,36 @@ def test_a_repeated_sweep_starts_from_the_gain_its_hold_measured_and_stops_neare
     assert all(r["reached"] for r in rows), rows
     past = [r["overshoot_m"] for r in rows]
     assert past[2] < past[1] < 0.6 * past[0], past
+
+
+@pytest.mark.parametrize("kind", ["f-coulomb", "f-memory"])
+def test_the_filter_propagates_f_as_own_velocity_not_the_gain_corrected_one(trained, sweep, kind):
+    """The bias filter predicts each step as (1 + g) × f_a's step from the previous estimate; the
+    velocity that step starts from is f_a's own (the plant's is (1 + g) times it, but f_a's
+    inertia must not see it, or every step multiplies the model's velocity by 1 + g once more).
+    Here the plant is f_a itself, pushed at 1 V per step from rest through its onset, and the filter
+    holds g = 0.3 with observations that weigh nothing: the estimate then moves (1 + g) × the
+    plant's travel.
+    Broken once (the corrected velocity fed back): on the stand-in of fem:C3 the
+    estimate raced 23 µm per step ahead of a coin moving 3.5, the plan saw the target coming and
+    turned V down, and the push to −0.5 mm ended 24 µm past it."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    model = trained(kind).model
+    plant = SurrogatePlant(model, model.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.6e-3, terminate_on_success=False, noise_std_m=1e-4, dv_max_V=1.0)
+    _, info = env.reset(seed=0)
+    policy = MPCPolicy(model, MPCConfig(inference=None), phi=plant.truth)
+    policy.reset(env.task_spec())
+    x0, V = info["x_m"], info["V_V"]
+    policy._estimate(x0, V)
+    policy.bias.reset(x0, gain=0.3, gain_var=1e-12, x_var=1e-16)
+    policy.bias.q_g, policy.bias.r = 0.0, 1.0          # g fixed; the observations weigh nothing
+    policy.previous = (x0, 0.0, V)
+    while info["x_m"] > x0 - 150e-6:                    # the ramp, through the onset
+        _, _, _, _, info = env.step(env.action_of(1.0))
+        x, u = policy._estimate(info["x_m"], info["V_V"])
+        policy.previous = (x, u, info["V_V"])
+    travel = info["x_m"] - x0
+    assert (x - x0) == pytest.approx(1.3 * travel, rel=0.05), (x - x0, travel)
