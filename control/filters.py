@@ -39,6 +39,9 @@ import numpy as np
 from deapull.errors import InputError
 
 FILTERS = ("none", "kf")
+#: the release's slope may change by its prior std over this many volts of fall, about the FEM's dead band
+#: of a release (~20 V, :class:`BiasKalman`)
+RELEASE_SPAN_V = 30.0
 #: what an MPC plans from (:class:`EstimatorConfig`)
 ESTIMATORS = ("bias", "kf", "none")
 
@@ -59,12 +62,16 @@ class EstimatorConfig:
     innovation_window : int
         :class:`BiasKalman`'s innovation check over this many steps (0: off): an estimate that
         lags the observations by more than the filter's own std allows is let go to follow them.
+    release_slope_m : float
+        :class:`BiasKalman`'s release (the prior std of the release's slope, m per V; 0: off): while V
+        falls the coin slides back by a slope the filter learns from the observations, not by f_a's step.
     """
 
     kind: str = "bias"
     process_std_m: float = 1e-6
     process_fraction: float = 0.2
     innovation_window: int = 0
+    release_slope_m: float = 0.0
 
     def __post_init__(self):
         if self.kind not in ESTIMATORS:
@@ -77,12 +84,15 @@ class EstimatorConfig:
         if int(self.innovation_window) != self.innovation_window or self.innovation_window < 0:
             raise InputError(f"mpc.estimator.innovation_window = {self.innovation_window!r}: must be an integer "
                              f">= 0 (steps; 0: off)")
+        if not (math.isfinite(self.release_slope_m) and self.release_slope_m >= 0):
+            raise InputError(f"mpc.estimator.release_slope_m = {self.release_slope_m!r}: must be a finite number "
+                             f">= 0 (m per V; 0: off)")
 
     def make(self, noise_std_m: float):
         """The filter of this kind for observation noise ``noise_std_m`` (None for ``none``)."""
         if self.kind == "bias":
             return BiasKalman(noise_std_m, self.process_std_m, self.process_fraction,
-                              innovation_window=int(self.innovation_window))
+                              innovation_window=int(self.innovation_window), release_slope_m=self.release_slope_m)
         if self.kind == "kf":
             return ModelKalman(noise_std_m, self.process_std_m, self.process_fraction)
         return None
@@ -154,27 +164,40 @@ class BiasKalman:
         tip's model lets the coin stand while it slides back), and the filter says so by
         adding that mean's square to the position's variance: the estimate then follows the
         observations until it is consistent again. Each firing is counted in ``inflations``.
+    release_slope_m : float
+        The release (0: off, f_a's step is trusted on every step). f_a trained on rising voltages
+        only (its card's known limits) does not know how far a falling V drags the coin back: the
+        FEM's coin stands through the first ~20 V of a release, then slides back ~5-10 µm per V.
+        With this set, a step in which V falls by ΔV > 0 is not f_a's: the coin moves back ρ ΔV, ρ
+        (m per V) a third state with prior N(0, ``release_slope_m``²) that walks with variance
+        ``release_slope_m``² ΔV / ``RELEASE_SPAN_V`` (a release may start to slide after a dead band).
+        The observations learn ρ as they learn g, so the estimate follows a sliding coin without
+        the lag of a random walk in position, the std says how far the release may have gone, and
+        a later release of the same episode starts from the slope the first one measured. Where V
+        holds or rises ρ is kept and moves nothing.
     """
 
     NOISE_FLOOR_M = 1e-9
 
     def __init__(self, noise_std_m: float, process_std_m: float = 1e-6, process_fraction: float = 0.05,
                  gain_prior_std: float = 0.3, gain_drift_std: float = 2e-3, gain_bounds=(-0.6, 1.5),
-                 innovation_window: int = 0, innovation_stds: float = 4.0):
+                 innovation_window: int = 0, innovation_stds: float = 4.0, release_slope_m: float = 0.0):
         if not (noise_std_m >= 0 and process_std_m > 0 and process_fraction >= 0 and gain_prior_std > 0
                 and gain_drift_std >= 0 and gain_bounds[0] < 0 < gain_bounds[1] and innovation_window >= 0
-                and innovation_stds > 0):
+                and innovation_stds > 0 and release_slope_m >= 0):
             raise ValueError(f"noise std {noise_std_m} >= 0, process std {process_std_m} > 0, process fraction "
                              f"{process_fraction} >= 0, gain prior std {gain_prior_std} > 0, drift "
                              f"{gain_drift_std} >= 0, gain bounds {gain_bounds} around 0, innovation window "
-                             f"{innovation_window} >= 0 and innovation stds {innovation_stds} > 0 needed")
+                             f"{innovation_window} >= 0, innovation stds {innovation_stds} > 0 and release "
+                             f"slope {release_slope_m} >= 0 needed")
         self.window, self.window_stds = int(innovation_window), float(innovation_stds)
         self.innovations: collections.deque = collections.deque(maxlen=max(self.window, 1))
         self.inflations = 0
         self.r = max(float(noise_std_m), self.NOISE_FLOOR_M) ** 2
         self.q, self.kappa = float(process_std_m) ** 2, float(process_fraction)
         self.p_g, self.q_g, self.bounds = float(gain_prior_std) ** 2, float(gain_drift_std) ** 2, gain_bounds
-        self.s, self.P = np.array([math.nan, 0.0]), np.zeros((2, 2))
+        self.release_slope = float(release_slope_m)
+        self.s, self.P = np.array([math.nan, 0.0, 0.0]), np.zeros((3, 3))
 
     @property
     def x(self) -> float:
@@ -195,9 +218,9 @@ class BiasKalman:
         """Start from the position ``x_obs`` (the first observation; variance σ², or ``x_var``) and
         g = ``gain`` with variance ``gain_var`` (default: 0 with the prior's; what an earlier episode
         learnt, :class:`~deapull.control.mpc_policy.MPCPolicy`'s ``learn``)."""
-        self.s = np.array([float(x_obs), float(gain)])
+        self.s = np.array([float(x_obs), float(gain), 0.0])
         self.P = np.diag([self.r if x_var is None else float(x_var),
-                          self.p_g if gain_var is None else max(float(gain_var), self.q_g)])
+                          self.p_g if gain_var is None else max(float(gain_var), self.q_g), self.release_slope ** 2])
         self.innovations.clear()
         return self.x
 
@@ -205,18 +228,29 @@ class BiasKalman:
         """The model's step ``step_m`` as the plant is expected to move it, (1 + g) Δ."""
         return (1.0 + self.gain) * float(step_m)
 
-    def update(self, step_m: float, x_obs: float, held: bool = False) -> float:
+    def update(self, step_m: float, x_obs: float, held: bool = False, fall_V: float = 0.0) -> float:
         """The position estimate after the model predicted the step ``step_m`` (m, from the
         previous estimate) and ``x_obs`` was observed. ``held``: the coin stood before the step
         and the model predicts no motion (V held, or crept inside the model's dead band); static
         friction holds the coin, so the step adds no process noise and the observations average
-        down as σ/√n."""
+        down as σ/√n. ``fall_V``: how far V fell in this step (V); with ``release_slope_m`` set, such a
+        step is the release's (the class docstring), not the model's."""
+        if self.release_slope > 0 and fall_V > 0:
+            f = float(fall_V)
+            return self._correct(np.array([[1.0, 0.0, f], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+                                 np.diag([self.q, 0.0, self.release_slope ** 2 * f / RELEASE_SPAN_V]), x_obs)
         d = float(step_m)
-        F = np.array([[1.0, d], [0.0, 1.0]])
-        s = np.array([self.s[0] + self.corrected(d), self.s[1]])
         moving = d != 0.0
         q = 0.0 if held and not moving else self.q
-        Q = np.diag([q + (self.kappa * d) ** 2, self.q_g if moving else 0.0])
+        return self._correct(np.array([[1.0, d, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+                             np.diag([q + (self.kappa * d) ** 2, self.q_g if moving else 0.0, 0.0]), x_obs,
+                             step=d)
+
+    def _correct(self, F, Q, x_obs: float, step: float = 0.0) -> float:
+        """Predict with F (plus the model's step (1 + g) ``step`` on x) and process noise Q, then
+        correct with the observation ``x_obs``; the position estimate."""
+        s = F @ self.s
+        s[0] += step
         P = F @ self.P @ F.T + Q
         if self.window:
             self.innovations.append((float(x_obs) - s[0], P[0, 0] + self.r))
