@@ -224,10 +224,6 @@ class BiasKalman:
         self.innovations.clear()
         return self.x
 
-    def corrected(self, step_m: float) -> float:
-        """The model's step ``step_m`` as the plant is expected to move it, (1 + g) Δ."""
-        return (1.0 + self.gain) * float(step_m)
-
     def update(self, step_m: float, x_obs: float, held: bool = False, fall_V: float = 0.0) -> float:
         """The position estimate after the model predicted the step ``step_m`` (m, from the
         previous estimate) and ``x_obs`` was observed. ``held``: the coin stood before the step

@@ -162,7 +162,6 @@ class FEMPlant:
         self.truth = Phi(mass_kg=self.mass_kg, mu_b=scene.coin.mu_b, mu_t=scene.coin.mu_t)
         self.stepper = self.problem = None
         self.t, self.V = 0.0, 0.0
-        self.last_record = None
         self.records: list = []
         self._started = 0.0
 
@@ -196,7 +195,6 @@ class FEMPlant:
                          time.perf_counter() - self._started, name, protocol="closed loop (deapull control)")
 
     def _keep(self, record) -> np.ndarray:
-        self.last_record = record
         self.records.append(record)
         self.t, self.V = record.t, record.V
         return np.array([record.x, record.u], dtype=np.float64)

@@ -139,8 +139,6 @@ class DEAProblem:
         self._tip_measure(qd)
         self._facet_tags = facet_tags
         self._contact_points = None     # (points, cells) of the contact quadrature, on first use
-        self._outside_points = None     # the contact's rule on the underside facets out of the obstacle's reach
-        self._table_points = None       # the same for the table's quadrature
         # the table's rule: Gauss–Lobatto on quadrilateral facets (points on the edges and corners, where
         # the DEA drapes onto the table); basix has no Lobatto rule on triangles, so tetrahedra get Gauss
         self.table_rule = "gauss_lobatto" if mesh.topology.cell_type == dolfinx.mesh.CellType.hexahedron else "gauss"
