@@ -138,7 +138,9 @@ class DEAProblem:
         self.symmetry_factor = 2.0 if scene.mesh.symmetry == "half_z" else 1.0
         self._tip_measure(qd)
         self._facet_tags = facet_tags
-        self._contact_points = None     # (points, cells) of the contact quadrature, on first use
+        # (points, cells) of each quadrature on first use (_positions_at): the contact's, its rule on the
+        # underside facets out of the obstacle's reach, the table's
+        self._contact_points = self._outside_points = self._table_points = None
         # the table's rule: Gauss–Lobatto on quadrilateral facets (points on the edges and corners, where
         # the DEA drapes onto the table); basix has no Lobatto rule on triangles, so tetrahedra get Gauss
         self.table_rule = "gauss_lobatto" if mesh.topology.cell_type == dolfinx.mesh.CellType.hexahedron else "gauss"
