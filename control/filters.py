@@ -42,9 +42,9 @@ FILTERS = ("none", "kf")
 #: the release's slope may change by its prior std over this many volts of fall, about the FEM's dead band
 #: of a release (~20 V, :class:`BiasKalman`)
 RELEASE_SPAN_V = 30.0
-#: a release step's own slide is uncertain by RELEASE_JUMP × the slope's prior std × its fall: the FEM's
-#: coin slips in a creeping release, 0 to ~30 µm per V from step to step (fem:C3's pull back to
-#: −0.7 mm: the filter's estimate within 2 stds at 91 % of the steps without it, 99 % with it)
+#: a release step's own slide is uncertain by RELEASE_JUMP × the slope's prior std × its fall: in a
+#: creeping release the FEM's coin slips in bursts, 0 to ~30 µm per V from step to step
+#: (docs/control.md, the multi-setpoint task)
 RELEASE_JUMP = 3.0
 #: what an MPC plans from (:class:`EstimatorConfig`)
 ESTIMATORS = ("bias", "kf", "none")

@@ -318,3 +318,14 @@ def test_the_mpcs_bias_filter_claims_no_more_than_the_observations_hold():
         stds.append(f.std_m)
     assert hits / trials < settle_bound(sigma, w, len(m), n0) + 3 * math.sqrt(0.25 / trials)
     assert min(stds) >= sigma / math.sqrt(len(m) + n0)
+
+
+@pytest.mark.parametrize("field, value", [("release_slope_m", -1e-5), ("release_slope_m", float("nan")),
+                                          ("innovation_window", -1), ("process_std_m", 0.0)])
+def test_bad_estimator_settings_are_refused_naming_the_key(field, value):
+    """A preset's ``[mpc.estimator]`` value out of range exits with the key's full name before any
+    episode runs. Broken once (the release slope's check left out): NaN and -1e-5 were taken."""
+    from deapull.control.mpc_policy import mpc_config
+    from deapull.errors import InputError
+    with pytest.raises(InputError, match=rf"mpc\.estimator\.{field} = "):
+        mpc_config({"estimator": {field: value}})
