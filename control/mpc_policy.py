@@ -5,7 +5,7 @@
 Jacobian of x with respect to the controls is 0, so iLQR cannot see that more voltage
 helps; and when the onset lies near the end of the horizon, the little motion the plan
 sees there is not worth its ΔV penalty, so iLQR settles on ΔV = 0 and the coin never
-starts (we measured exactly that). Each step the policy therefore rolls the model out
+starts. Each step the policy therefore rolls the model out
 under the full ramp (ν = 1 over the horizon). While the coin is short of the target and
 even the ramp does not bring it within the tolerance of the target inside the horizon,
 the policy applies the ramp without solving: voltage moves the coin one way only while
@@ -48,12 +48,10 @@ of the window, or just outside it, while the estimate says it is inside; the hys
 (``HOLD_STDS``) then keeps the hold. As the held observations average down, the policy
 re-centres: while the estimate stands off the target, on either side, by more than
 ``RECENTRE_STDS`` of its own stds and more than ``RECENTRE_BAND`` × tolerance, it steps V by
-``creep_V`` toward the target at every step until it no longer does. The steps come in bursts, not spaced out: on the FEM a 0.1 V step every 20 steps
-did not move a held coin (fem:C7 stood 21.5 µm short while V crept from 394 to 400 V),
-the same steps at every step did (it came to 9.95 µm short and settled). Measured on fem:C3
-at resolved v2 without it: the push-push-pull-back task held 10.3 µm short of −0.5 mm from
-step 1,440 to 3,000, its estimate 5.3 µm ahead of the truth (a 2σ mean of 1,560 noise
-samples; docs/control.md).
+``creep_V`` toward the target at every step until it stops doing so. The steps come in bursts, not
+spaced out: a held FEM coin stands through small steps spread over many steps and moves under the
+same steps in a row (docs/control.md;
+``tests/control/test_filters.py::test_mpc_recentres_a_coin_its_estimate_holds_short``).
 
 **Taper at the reach.** ``approach_m`` slows the push within that distance of the target,
 so the coin does not coast past. Where the target lies at the edge of the coin's reach (the
@@ -82,8 +80,7 @@ leaves V unchanged for its first step with the coin standing after it, the polic
 would bring only late in the horizon, not worth its ΔV penalty, and would be chosen again
 at every step (the coin never restarts). With an f-memory f_a this happens after every stop
 or reversal, where the tip must reload its friction by ~2 μ_b N c of stroke before the coin
-moves (measured on surrogate:C1 at 0.4 V per step: 3 of 10 episodes stood still for
-3,000 steps).
+moves (``tests/control/test_native_memory.py::test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps``).
 
 **Sweep** (``SWEEP``, :meth:`MPCPolicy._sweep`). Where the noise cannot be averaged down to the
 window in time (``_unresolvable``: at σ = 1 mm the estimate's std is ~200 µm during the push), a
@@ -180,8 +177,9 @@ SLOPE_PRIOR = 2.0
 SLOPE_SPAN_V = 10.0
 #: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
 #: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
-#: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, and a schedule
-#: aimed by such landings reached 1/9 against 8/9 planned)
+#: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, so a schedule
+#: aimed by such landings misses the window; the sweep learns instead,
+#: tests/control/test_mpc.py::test_a_repeated_sweep_starts_from_the_gain_its_hold_measured_and_stops_nearer)
 LEARN_STD = 2.0
 #: with a prior and the one-step loss, a field is planned at its estimate once its Cramér–Rao bound
 #: on the relative error is below this (the paper's 10 % inference error), else at the prior's median
@@ -580,8 +578,8 @@ class MPCPolicy(Policy):
         closes on the target, which it reaches at σ = tolerance / ``standoff_stds``. At the target
         itself: where the target lies at the edge of the reach (:meth:`_at_reach`; a coin stopped
         short there restarts only after the tip has reloaded, and no voltage is left to make up that
-        stroke: fem:C7 at resolved parked at the stand-off and reached 400 V 11.5 µm short;
-        docs/control.md), and where waiting cannot help (:meth:`_unresolvable`), and after
+        stroke: ``tests/control/test_mpc.py::test_the_stand_off_gives_way_at_the_edge_of_the_reach``),
+        and where waiting cannot help (:meth:`_unresolvable`), and after
         ``MAX_WAIT`` steps at the stand-off."""
         margin = self.standoff_stds * self.estimate_std_m - self.tolerance_m
         if self.standoff_stds <= 0 or margin <= 0 or self.waited >= MAX_WAIT or self._unresolvable():
@@ -694,7 +692,7 @@ class MPCPolicy(Policy):
         the voltage limit, the model's coin (its travel scaled by 1 + g) would stop no more than
         the tolerance past the target. Then the approach taper does not apply: a coin that
         cannot go much further cannot coast past, and the slower push costs the last µm
-        (fem:C7 at resolved v2 stopped 0.13 µm outside the window at 400 V; docs/control.md).
+        (``tests/control/test_mpc.py::test_the_approach_taper_gives_way_at_the_edge_of_the_reach``).
         Judged only while the coin is short of the target by less than ``within`` (m; default
         ``approach_m``)."""
         if not self.config.reach_gate:
@@ -868,8 +866,8 @@ class MPCPolicy(Policy):
             # would say the same (module docstring, "Stalls")
             # outside the hold band, not only outside the tolerance: between the two the policy
             # neither holds (nor re-centres) nor moves, and a coin that stands there on a biased
-            # estimate stays outside for good (fem:C1, seed 0, the stand-off: 2,500 steps 10.2 µm
-            # short with the estimate 7-8 µm off; docs/control.md)
+            # estimate stays outside for good (tests/control/test_mpc.py::
+            # test_a_coin_standing_outside_the_hold_band_creeps_even_inside_the_tolerance)
             band = self.hold_band * tolerance if self.hold_band > 0 else tolerance
             stalled = (UNSTALL and abs(x - model_target) > band and float(self.plan[0, 0, 0]) == 0.0
                        and float(sol.x[best, 1, 1]) == 0.0)

@@ -433,12 +433,12 @@ class DEAProblem:
         While a line search damps Newton's steps (the last one took more than one residual: a
         friction's onset or reversal, after :meth:`set_line_search`), r is
         ``solver.line_search_reuse_ratio``: those iterations cut the residual by ≈ 0.9 each with a
-        fresh Jacobian or a kept one, since the direction, not the Jacobian, limits them; and at the
-        data fidelity a fresh one costs as much as ≈ 37 kept iterations (0.28 s assembly + 0.65 s LU
-        against 25 ms). At most :data:`DAMPED_REUSE_ITERATIONS` damped iterations in a row keep it.
+        fresh Jacobian or a kept one, since the direction, not the Jacobian, limits them, and a fresh
+        one (assembly and LU) costs tens of kept iterations. At most :data:`DAMPED_REUSE_ITERATIONS`
+        damped iterations in a row keep it.
         Undamped steps under the line search keep ``solver.jacobian_reuse_ratio``: a kept Jacobian that
-        converges slowly there is stale (C3 on one core with 0.95 on every line-search iteration: 722 s
-        against 536 s).
+        converges slowly there is stale
+        (tests/fem_solver/test_stepping.py::test_a_line_search_keeps_its_jacobian_longer_and_lands_on_the_same_path).
         """
         it, fnorm = snes.getIterationNumber(), snes.getFunctionNorm()
         sv = self.scene.solver

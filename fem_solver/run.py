@@ -41,7 +41,7 @@ class FieldWriter:
 
 #: measured bias of the coin travel from the friction regularisation ε_v (docs/fem_accuracy.md,
 #: "Friction regularisation"): C3 on the shipped mesh with its 5 x 5 contact points, travel at
-#: ε_v against ε_v = 1e-6 m/s (with the 3 x 3 points of before: -4.0 % and -0.15 %)
+#: ε_v against ε_v = 1e-6 m/s
 SLIP_RATE_BIAS = {1e-4: -0.036, 1e-5: -0.0017}
 
 

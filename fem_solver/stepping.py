@@ -123,11 +123,11 @@ class StepRecord:
 PLACEMENT_MIN_STEP = 1e-3  # smallest gravity-continuation step of the initial placement
 #: a stiffer coin penalty than this is reached at placement by continuation from it (geometric in
 #: k_n, after gravity): the DEA first touches the coin part-way through the gravity continuation, and
-#: full Newton steps cross that touch-down at a soft penalty (C3 at the data fidelity: 28 Newton
-#: iterations, 22 s, from 2.24e7 against 85 iterations, 67 s, from 2.24e9, to the same equilibrium)
+#: full Newton steps cross that touch-down at a soft penalty, in about a third of the iterations
+#: (tests/fem_solver/test_stepping.py::test_a_stiff_penalty_is_placed_by_continuation_onto_the_same_equilibrium)
 PLACEMENT_PENALTY_N_M3 = 2.24e7
 #: Newton's cap in a continuation step of the placement: a cut step is cheaper than a long
-#: failing solve (at the data fidelity a failing 12-iteration step costs 9 s, a converging step 2-3 s)
+#: failing solve
 PLACEMENT_MAX_IT = 12
 #: largest move of the DEA's free-end face in one (sub-)step, as a fraction of the DEA's thickness;
 #: a converged solve that moves it further jumped to another equilibrium branch and is cut back
@@ -136,9 +136,9 @@ MAX_TIP_MOVE_PER_STEP = 0.25
 #: SNES line search of the second try of a (sub-)step whose full-Newton-step solve failed
 LINE_SEARCH_RETRY = "bt"
 #: the last try of a (sub-)step whose line-search solve ran out of iterations: the line search
-#: again with this many times ``solver.newton_max_it`` (resolved v2, C5 triangle: the step after
-#: the 400 V peak needs 84 iterations with the line search; with 40 it failed at every cut-back
-#: down to 1.4 µs and the case was lost)
+#: again with this many times ``solver.newton_max_it``: at a reversal the line search converges slowly
+#: at every step size, so more iterations help where a cut-back does not
+#: (tests/fem_solver/test_stepping.py::test_a_line_search_that_runs_out_of_iterations_gets_a_longer_try_not_a_cut_back)
 LONG_NEWTON_FACTOR = 3
 #: the friction regularisation's factors, in turn, of a (sub-)step solved by continuation after its
 #: line-search try failed (:meth:`Stepper._friction_continuation`); the last is the scene's own
@@ -470,10 +470,10 @@ class Stepper:
         iterations summed over both tries.
 
         Full Newton steps cycle where the rate-regularised friction reverses over the contact
-        (its tangential force flips within a slip of ε_v Δt): at the C1 triangle's peak,
-        |F| alternated between 2.9e-2 and 3.5e-2 for 40 iterations at every step size down
-        to 1.4 µs, so cutting back only sharpens the flip. The line search
-        (``snes_linesearch_type bt``) converges that step at full size in 12–17 iterations.
+        (its tangential force flips within a slip of ε_v Δt): at a triangle's peak |F| alternates
+        between two values at every step size, so cutting back only sharpens the flip. The line
+        search (``snes_linesearch_type bt``) converges that step at full size
+        (tests/fem_solver/test_stepping.py::test_a_triangle_turns_at_its_peak_without_cut_backs).
         Steps that converge with full steps (every step of the ramps) never see it. Once the
         line search has saved a step it stays on for the rest of the run (the first try of
         every later step uses it: a turning load turns again, and a failed full-step try
@@ -484,8 +484,7 @@ class Stepper:
         A line-search try that runs out of iterations (DIVERGED_MAX_IT) gets one more, from
         the same predictor, with :data:`LONG_NEWTON_FACTOR` × ``solver.newton_max_it``
         iterations before the step is cut back: at a reversal the line search can converge
-        slowly at every step size (resolved v2, C5 triangle's peak: 84 iterations), so a cut-back
-        does not help, while more iterations do.
+        slowly at every step size, so a cut-back does not help, while more iterations do.
         """
         def attempt(first: bool):
             if not first:
@@ -530,9 +529,10 @@ class Stepper:
         :meth:`_coupled_solve` returns at the scene's ε_v, the iterations summed.
 
         Newton converges on the rate-regularised friction only within a slip of about ε_v Δt of the
-        answer. Where the tip starts to slip fast (the push's onset at 5 V per 1 ms step: C3 at the data
-        fidelity, t ≈ 0.046–0.049 s) the line search runs out of its iterations; from the solution at a
-        larger ε_v, whose basin is as much wider, Newton converges at the next (docs/physics.md).
+        answer. Where the tip starts to slip fast (the push's onset at 5 V per 1 ms step) the line
+        search runs out of its iterations; from the solution at a larger ε_v, whose basin is as much
+        wider, Newton converges at the next (docs/physics.md; tests/fem_solver/test_stepping.py::
+        test_a_fast_push_onset_converges_by_continuation_in_the_friction_regularisation).
         """
         self.p.restore()
         self.p.predict(weights)
@@ -562,7 +562,7 @@ class Stepper:
 
         Extrapolating across a turn pushes the DEA further the way it was going while the
         load now pulls it back, and after a short kink-landing step by several times that
-        step (C1 triangle at 400 V: 3.6× the 0.39 ms landing step): the solve then needs
+        step: the solve then needs
         cut-backs, whose tiny sub-steps make the rate-regularised friction a near-jump in the
         displacement (its width is ε_v Δt) — see :data:`MAX_TIP_MOVE_PER_STEP`.
         """

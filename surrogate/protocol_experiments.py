@@ -385,9 +385,8 @@ def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kind
     ``pairs.csv`` and ``pairs.md`` (x error of each held-out run, % of travel, per kind) and returns
     the rows (with ``pair``).
 
-    The models train on ramps only: trained on the other coins' excitation runs as well, f-patch-lag
-    lost the ramps (C3/C4 held out, trained with C1's six excitation runs: 5.8 % of travel on C3's
-    ramp against 0.16 %) and still missed the pair's release and random1 by 6-12 % (docs/surrogate.md).
+    The models train on ramps only; the held-out pair's excitation runs test them on protocols and a
+    coin they never saw.
     """
     out = Path(out_dir)
     excitation = Path(excitation_dir) if excitation_dir else None
