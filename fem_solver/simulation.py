@@ -105,14 +105,12 @@ class Simulation:
     Attributes
     ----------
     scene : the resolved scene
-    layout : where everything sits (:class:`deapull.meshing.layout.Layout`)
     mesh_path, mesh_summary : the ``.msh`` file and the mesher's summary of it
     mesh, cell_tags, facet_tags : the DEA's dolfinx mesh and its tags
     mass_kg : the coin's mass, its mesh volume × ``coin.density_kg_m3`` (None without a coin)
     comm : the communicator the mesh is distributed over
     """
     scene: Scene
-    layout: Layout
     mesh_path: Path
     mesh_summary: dict
     mesh: object
@@ -126,12 +124,16 @@ class Simulation:
                    comm=MPI.COMM_WORLD) -> "Simulation":
         """Mesh ``scene`` (at ``setup`` when given by name) into ``mesh_dir`` and read it once."""
         scene = resolve_scene(scene, setup)
-        lay = layout(scene)
         mesh_path, summary = mesh_scene(scene, Path(mesh_dir), comm)
         read = compat.read_scene_mesh(mesh_path, comm)
         mass_kg = read.volumes_m3["coin"] * scene.coin.density_kg_m3 if scene.coin is not None else None
-        return cls(scene=scene, layout=lay, mesh_path=mesh_path, mesh_summary=summary, mesh=read.mesh,
+        return cls(scene=scene, mesh_path=mesh_path, mesh_summary=summary, mesh=read.mesh,
                    cell_tags=read.cell_tags, facet_tags=read.facet_tags, mass_kg=mass_kg, comm=comm)
+
+    @property
+    def layout(self) -> Layout:
+        """Where everything sits (:class:`deapull.meshing.layout.Layout`; the one the mesh was built on)."""
+        return layout(self.scene)
 
     def problem(self) -> DEAProblem:
         """A fresh problem on the mesh (the state at rest)."""
