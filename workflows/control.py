@@ -418,7 +418,8 @@ def run(config: ControlConfig) -> list[Episode]:
     config.out.mkdir(parents=True, exist_ok=True)
     packages = VERSIONED + (("dolfinx", "petsc4py") if any(p.kind == "fem" for p in config.plants) else ())
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(config).items()}
-    write_json(config.out / "run.json", {"config": settings, "git_commit": provenance.git_commit(),
+    commit = provenance.git_commit()
+    write_json(config.out / "run.json", {"config": settings, "git_commit": commit,
                                          **provenance.package_versions(packages)}, indent=2)
     targets = plant_targets(config)
     total = len(config.plants) * len(config.policies) * len(config.noises) * config.episodes
@@ -447,8 +448,8 @@ def run(config: ControlConfig) -> list[Episode]:
                         episodes.append(ep)
                         bar.update(1)
                         if len(episodes) < total:       # so far, so that a long FEM run that stops keeps it
-                            write_outputs(config.out, episodes, task, left_out, figures=False)
-    write_outputs(config.out, episodes, task, left_out)
+                            write_outputs(config.out, episodes, task, left_out, figures=False, commit=commit)
+    write_outputs(config.out, episodes, task, left_out, commit=commit)
     return episodes
 
 
@@ -493,15 +494,17 @@ def fem_run_name(setup: str, tag: str, policy: str, noise: float, episode: int) 
 
 
 def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list[dict] = (),
-                  figures: bool = True) -> None:
+                  figures: bool = True, commit: str = "unknown") -> None:
     """The CSV, table, traces and (``figures``) figures of the episodes; ``left_out``: rows of the
-    plants that could not reach the task (in the CSV and the table, no traces). Written after
-    every episode without the figures, each file whole (temp file, then rename)."""
+    plants that could not reach the task (in the CSV and the table, no traces); ``commit``: the git
+    commit that ran them, in ``summary.json``. Written after every episode without the figures, each
+    file whole (temp file, then rename)."""
     rows = [e.row for e in episodes] + list(left_out)
     columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred", "crlb") for f in PHI_FIELDS]
     write_csv(out / "control.csv", rows, columns)
     write_text(out / "table.md", summary_table(rows, task.tolerance_m) + "\n")
-    write_json(out / "summary.json", {"schema": 2, "tolerance_m": task.tolerance_m, "target_m": task.target_m,
+    write_json(out / "summary.json", {"schema": 2, "git_commit": commit, "tolerance_m": task.tolerance_m,
+                                      "target_m": task.target_m,
                                       "groups": control_outputs.summary_counts(rows),
                                       "table": control_outputs.summary_record(rows, task.tolerance_m)}, indent=2)
     traces = {}

@@ -235,16 +235,26 @@ def control_goals(result: dict) -> str:
     return "\n".join(rows + [""] + lines)
 
 
+def _commit(commit: str | None) -> str:
+    """A git commit as its short hash; any other note (e.g. "before fd8c86c") as it is."""
+    if not commit:
+        return "unknown"
+    return commit[:7] if re.fullmatch(r"[0-9a-f]{7,40}", commit) else commit
+
+
 def control_fem(result: dict) -> str:
     """The MPC on the FEM plants (``make control PRESET=fem``): per plant its target and each
     episode's iterations, and goal G5 pooled over the plants."""
     groups = [g for g in result["groups"] if g["policy"] == "mpc"]
-    rows = ["| plant | target (mm) | iterations to the target, by episode | settled | largest overshoot µm |",
-            "|---|---|---|---|---|"]
-    for g in groups:
+    # the commit that ran each plant (a group's own where plants were run one command each)
+    commits = [g.get("git_commit", result.get("git_commit")) for g in groups]
+    made = any(commits)
+    rows = ["| plant | target (mm) | iterations to the target, by episode | settled | largest overshoot µm |"
+            + (" run at commit |" if made else ""), "|---|---|---|---|---|" + ("---|" if made else "")]
+    for g, commit in zip(groups, commits):
         its = " / ".join("–" if n is None else f"{n:.0f}" for n in g.get("iterations", []))
         rows.append(f"| {g['plant']} | {g['task']} | {its} | {g['settled']}/{g['episodes']} | "
-                    f"{_um(g['largest_overshoot_m'])} |")
+                    f"{_um(g['largest_overshoot_m'])} |" + (f" {_commit(commit)} |" if made else ""))
     settled = sum(g["settled"] for g in groups)
     episodes = sum(g["episodes"] for g in groups)
     its = sorted(n for g in groups for n in g.get("iterations", []) if n is not None)

@@ -212,3 +212,21 @@ def test_the_multi_setpoint_block_is_met_only_where_every_setpoint_settled():
     assert "280 / 110 / –" in docs_tables.control_fem_multi(short)
     assert "in 1 of 2 episode(s)" in docs_tables.control_fem_multi(short)
     assert "not met" in docs_tables.control_fem_multi(short)
+
+
+def test_the_fem_control_block_names_the_commit_that_ran_each_plant():
+    """Plants run one command each carry their own commit (a table of mixed runs says which is which);
+    a summary written in one run carries one; a summary without any shows no commit column."""
+    def group(k, commit=None):
+        g = {"policy": "mpc", "plant": f"fem:C{k}", "task": "-0.8", "episodes": 3, "settled": 3,
+             "largest_overshoot_m": 0.0, "iterations": [450, 270, 270]}
+        return g if commit is None else {**g, "git_commit": commit}
+    mixed = docs_tables.control_fem({"groups": [group(1, "aaaaaaa1234"), group(2, "bbbbbbb5678")]})
+    lines = mixed.splitlines()
+    assert lines[0].endswith("run at commit |")
+    assert lines[2].endswith("| aaaaaaa |") and lines[3].endswith("| bbbbbbb |")
+    one_run = docs_tables.control_fem({"git_commit": "ccccccc9", "groups": [group(1), group(2, "ddddddd0")]})
+    assert one_run.splitlines()[2].endswith("| ccccccc |") and one_run.splitlines()[3].endswith("| ddddddd |")
+    assert "commit" not in docs_tables.control_fem({"groups": [group(1), group(2)]})
+    noted = docs_tables.control_fem({"groups": [group(1, "before fd8c86c"), group(2, "e" * 40)]}).splitlines()
+    assert noted[2].endswith("| before fd8c86c |") and noted[3].endswith("| eeeeeee |")
