@@ -100,8 +100,9 @@ moves the setpoint (push, push, pull back) re-plans at once.
 **Learning across episodes** (``learn``, iterative learning control). The plant is
 deterministic and a repeated task starts from the same state, so the voltage path that one
 episode plays lands the coin where it landed before. An episode that ends with its estimate
-inside the tolerance of a single target, at most ``LEARN_STD`` tolerances uncertain, where the noise
-can be averaged down (``_unresolvable``), starts what the next
+within the approach distance (``approach_m``; the tolerance without one) of a single target, at most
+``LEARN_STD`` tolerances uncertain, where the noise can be averaged down (``_unresolvable``), starts
+what the next
 episodes of the same task (target, tolerance, noise, step and rate) play instead of planning:
 a rate schedule to an end voltage V_f, then the hold. The schedule runs at the plant's full rate
 up to where that first episode's coin started, then at the cruise rate, tapered over the
@@ -175,7 +176,8 @@ SLOPE_PRIOR = 2.0
 #: f_a's slope of the landing is a difference over SLOPE_SPAN_V: f_a's landings form a staircase
 #: (stick-slip) whose steps are a few volts long, and a 2 V difference reads a step's flat
 SLOPE_SPAN_V = 10.0
-#: a planned episode starts the landing line if it ends inside the tolerance with its estimate's std
+#: a planned episode starts the landing line if it ends within the approach distance (f_a's slope is the
+#: line's prior there; the tolerance without one) with its estimate's std
 #: at most LEARN_STD tolerances (the line weighs it by that variance), where the noise can be averaged
 #: down at all (``_unresolvable``: at σ = 1 mm a landing's mean is ~100 µm uncertain, so a schedule
 #: aimed by such landings misses the window; the sweep learns instead,
@@ -377,8 +379,8 @@ class MPCPolicy(Policy):
 
     def _learn(self) -> None:
         """What the episode that just ended tells the next one of its task (module docstring,
-        "Learning across episodes"). A planned episode that ended inside the tolerance of its one
-        target (by its own estimate, at most ``LEARN_STD`` tolerances uncertain) gives the first point of the
+        "Learning across episodes"). A planned episode that ended within the approach distance of its
+        one target (by its own estimate, at most ``LEARN_STD`` tolerances uncertain) gives the first point of the
         landing line: where it ended, or where it turned back if it went past, and f_a's slope. A
         scheduled episode adds the mean of its held observations where the schedule landed. The
         next end voltage is where the line fitted to them crosses the target (:meth:`_landing_fit`)."""
@@ -392,7 +394,8 @@ class MPCPolicy(Policy):
         if entry is not None and landing is not None and landing["n"] > 0:
             entry["landings"].append((landing["V_f"], landing["sum"] / landing["n"],
                                       max(self.spec.noise_std_m, 1e-9) ** 2 / landing["n"]))
-        elif (entry is None and not self._unresolvable() and abs(x - self.target_m) <= self.tolerance_m
+        elif (entry is None and not self._unresolvable()
+              and abs(x - self.target_m) <= max(self.tolerance_m, self.approach_m)
               and self.estimate_std_m <= LEARN_STD * self.tolerance_m):
             V_ref, x_ref = (V, x) if self.turned is None else self.turned
             # the schedule's shape: fast up to where this episode's coin started, and the approach

@@ -666,6 +666,34 @@ def test_a_repeated_task_learns_the_final_voltage_and_the_gain_and_the_episodes_
     assert again["iterations_to_target"] > 1.1 * learnt and other.learned == {}
 
 
+def test_an_episode_that_ends_within_the_approach_distance_starts_the_landing_line(coulomb, sweep):
+    """The landing line weighs each point by its variance, so an episode whose converged estimate
+    ends off the window but within the approach distance (where f_a's slope is the line's prior) is a
+    point of it: 15 µm from the target with a std of 8 µm starts the line with ``approach_m`` = 0.1 mm,
+    not without an approach distance (then the tolerance bounds it), and 150 µm off does not. Broken
+    once (the tolerance as the bound whatever the approach distance): nothing was learnt."""
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+    env = CoinPushEnv(plant, target_m=-0.4e-3, terminate_on_success=False, max_steps=400, noise_std_m=1e-4)
+
+    def learnt(approach_m: float, off_m: float) -> bool:
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None, approach_m=approach_m),
+                           phi=plant.truth)
+        run_episode(env, policy, seed=0, step_limit=300, hold_steps=20)
+        V = policy.previous[2]
+        assert V > 100                     # the coin has moved: f_a has a slope there
+        policy.previous, policy.turned, policy.landing = (-0.4e-3 + off_m, 0.0, V), None, None
+        policy.bias.P[0, 0] = 8e-6 ** 2
+        policy._learn()
+        return bool(policy.learned)
+
+    assert learnt(1e-4, 15e-6) and learnt(1e-4, -15e-6)
+    assert not learnt(0.0, 15e-6) and not learnt(1e-4, 150e-6)
+
+
 def test_the_stand_off_does_not_wait_where_the_noise_cannot_be_averaged_down_in_time(coulomb, sweep):
     """At σ = 1 mm the held observations average the estimate to σ/√max_wait = 26 µm at best, far
     above the stand-off's 0.3 × 10 µm: waiting cannot help, so the MPC does not stand off (at
