@@ -117,6 +117,9 @@ def test_control_run_writes_csv_table_and_figures(base, tmp_path, capsys):
         for noise in ("0", "1e-05"):
             assert (out / f"{stem}_surrogate_C1_noise{noise}.png").stat().st_size > 10_000
     assert (out / "traces.npz").is_file() and (out / "run.json").is_file()
+    # the results file names the commit that ran it, as run.json does
+    from deapull import provenance
+    assert json.loads((out / "summary.json").read_text())["git_commit"] == provenance.git_commit()
 
 
 def test_an_interrupted_run_keeps_the_episodes_it_finished(base, tmp_path, monkeypatch):
