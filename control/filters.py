@@ -69,6 +69,12 @@ class EstimatorConfig:
     release_slope_m : float
         :class:`BiasKalman`'s release (the prior std of the release's slope, m per V; 0: off): while V
         falls the coin slides back by a slope the filter learns from the observations, not by f_a's step.
+    hold_coast : bool
+        :class:`BiasKalman`'s step at a held voltage: ``True`` (default) moves the estimate by f_a's
+        step, as on every step; ``False`` keeps it where it is and adds that step as variance, so that the
+        observations decide whether the coin coasted. For an f_a trained on rising voltages only (its
+        card's known limits): the quasi-static DEA's tip stands at a held V, and the FEM's coin stops
+        within two steps, where an f-memory f_a keeps its coin coasting ~20 µm (docs/control.md).
     """
 
     kind: str = "bias"
@@ -76,6 +82,7 @@ class EstimatorConfig:
     process_fraction: float = 0.2
     innovation_window: int = 0
     release_slope_m: float = 0.0
+    hold_coast: bool = True
 
     def __post_init__(self):
         if self.kind not in ESTIMATORS:
@@ -91,12 +98,15 @@ class EstimatorConfig:
         if not (math.isfinite(self.release_slope_m) and self.release_slope_m >= 0):
             raise InputError(f"mpc.estimator.release_slope_m = {self.release_slope_m!r}: must be a finite number "
                              f">= 0 (m per V; 0: off)")
+        if not isinstance(self.hold_coast, bool):
+            raise InputError(f"mpc.estimator.hold_coast = {self.hold_coast!r}: must be true or false")
 
     def make(self, noise_std_m: float):
         """The filter of this kind for observation noise ``noise_std_m`` (None for ``none``)."""
         if self.kind == "bias":
             return BiasKalman(noise_std_m, self.process_std_m, self.process_fraction,
-                              innovation_window=int(self.innovation_window), release_slope_m=self.release_slope_m)
+                              innovation_window=int(self.innovation_window), release_slope_m=self.release_slope_m,
+                              hold_coast=self.hold_coast)
         if self.kind == "kf":
             return ModelKalman(noise_std_m, self.process_std_m, self.process_fraction)
         return None
@@ -179,13 +189,18 @@ class BiasKalman:
         the lag of a random walk in position, the std says how far the release may have gone, and
         a later release of the same episode starts from the slope the first one measured. Where V
         holds or rises ρ is kept and moves nothing.
+    hold_coast : bool
+        False: a step in which V holds is not f_a's either (an f_a trained on rising voltages only has
+        never seen one). The quasi-static DEA's tip stands, so the estimate stays where it is and f_a's
+        step is added to its variance, not to its mean: the observations decide how far the coin coasted.
     """
 
     NOISE_FLOOR_M = 1e-9
 
     def __init__(self, noise_std_m: float, process_std_m: float = 1e-6, process_fraction: float = 0.05,
                  gain_prior_std: float = 0.3, gain_drift_std: float = 2e-3, gain_bounds=(-0.6, 1.5),
-                 innovation_window: int = 0, innovation_stds: float = 4.0, release_slope_m: float = 0.0):
+                 innovation_window: int = 0, innovation_stds: float = 4.0, release_slope_m: float = 0.0,
+                 hold_coast: bool = True):
         if not (noise_std_m >= 0 and process_std_m > 0 and process_fraction >= 0 and gain_prior_std > 0
                 and gain_drift_std >= 0 and gain_bounds[0] < 0 < gain_bounds[1] and innovation_window >= 0
                 and innovation_stds > 0 and release_slope_m >= 0):
@@ -201,6 +216,7 @@ class BiasKalman:
         self.q, self.kappa = float(process_std_m) ** 2, float(process_fraction)
         self.p_g, self.q_g, self.bounds = float(gain_prior_std) ** 2, float(gain_drift_std) ** 2, gain_bounds
         self.release_slope = float(release_slope_m)
+        self.hold_coast = bool(hold_coast)
         self.s, self.P = np.array([math.nan, 0.0, 0.0]), np.zeros((3, 3))
 
     @property
@@ -228,19 +244,23 @@ class BiasKalman:
         self.innovations.clear()
         return self.x
 
-    def update(self, step_m: float, x_obs: float, held: bool = False, fall_V: float = 0.0) -> float:
+    def update(self, step_m: float, x_obs: float, held: bool = False, fall_V: float = 0.0,
+               hold_V: bool = False) -> float:
         """The position estimate after the model predicted the step ``step_m`` (m, from the
         previous estimate) and ``x_obs`` was observed. ``held``: the coin stood before the step
         and the model predicts no motion (V held, or crept inside the model's dead band); static
         friction holds the coin, so the step adds no process noise and the observations average
         down as σ/√n. ``fall_V``: how far V fell in this step (V); with ``release_slope_m`` set, such a
-        step is the release's (the class docstring), not the model's."""
+        step is the release's (the class docstring), not the model's. ``hold_V``: V did not change in
+        this step; without ``hold_coast`` the model's step is then variance, not motion (the class docstring)."""
         if self.release_slope > 0 and fall_V > 0:
             f = float(fall_V)
             return self._correct(np.array([[1.0, 0.0, f], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
                                  np.diag([self.q + (RELEASE_JUMP * self.release_slope * f) ** 2, 0.0,
                                           self.release_slope ** 2 * f / RELEASE_SPAN_V]), x_obs)
         d = float(step_m)
+        if hold_V and not self.hold_coast and d != 0.0:
+            return self._correct(np.eye(3), np.diag([self.q + d * d, 0.0, 0.0]), x_obs)
         moving = d != 0.0
         q = 0.0 if held and not moving else self.q
         return self._correct(np.array([[1.0, d, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),

@@ -767,7 +767,7 @@ class MPCPolicy(Policy):
         x_pred, u_pred = float(pred[0]) * X_UNIT_M, float(pred[1]) * U_UNIT_M_S
         if self.bias is not None:
             x_obs = x
-            x = self.bias.update(x_pred - x0, x_obs, held=abs(u0) < 1e-9, fall_V=max(V0 - V, 0.0))
+            x = self.bias.update(x_pred - x0, x_obs, held=abs(u0) < 1e-9, fall_V=max(V0 - V, 0.0), hold_V=V == V0)
             if not self.noisy:
                 return x_obs, (x_obs - x0) / self.dt
             return x, u_pred

@@ -136,6 +136,38 @@ def test_the_release_slope_lets_the_estimate_follow_a_coin_that_f_a_lets_stand()
     assert abs(errors[worst]) > 250e-6 and stds[worst] < 10e-6
 
 
+def test_without_hold_coast_a_coast_f_a_predicts_at_held_v_is_variance_not_motion():
+    """f_a (f-memory, trained on rising voltages only) coasts its coin 20 µm over 15 steps after V stops
+    rising; the FEM's coin stops at once (fem:C7, docs/control.md). At σ = 0.1 mm over 20 seeds, with
+    ``hold_coast=False`` the estimate stays within 2 of its stds of the standing coin at ≥ 90 % of the
+    steps, and its error after the coast is under half of the coast (median); with ``hold_coast=True``
+    it runs ~18 µm ahead of the coin, outside 2 of its stds at over 40 % of the steps. Broken once (the held
+    step moved the estimate as every other step does): the test failed."""
+    from deapull.control.filters import BiasKalman
+
+    coast = np.linspace(2.5e-6, 0.2e-6, 15)          # f_a's steps at the held V: 20 µm in all
+    coast *= 20e-6 / coast.sum()
+
+    def hold(hold_coast, seed):
+        rng = np.random.default_rng(seed)
+        f = BiasKalman(1e-4, hold_coast=hold_coast)
+        x = -0.786e-3
+        f.reset(x + rng.normal(0.0, 5e-6), x_var=(5e-6) ** 2)   # where the push left it
+        errors, stds = [], []
+        for k in range(60):
+            d = -float(coast[k]) if k < len(coast) else 0.0
+            errors.append(f.update(d, x + rng.normal(0.0, 1e-4), held=d == 0.0, hold_V=True) - x)
+            stds.append(f.std_m)
+        return np.array(errors), np.array(stds)
+
+    runs = [hold(False, seed) for seed in range(20)]
+    assert np.mean([np.mean(np.abs(e) < 2 * s) for e, s in runs]) >= 0.9
+    assert np.median([abs(e[len(coast)]) for e, _ in runs]) < 10e-6
+    trusted = [hold(True, seed) for seed in range(20)]
+    assert np.median([-e[len(coast)] for e, _ in trusted]) > 15e-6
+    assert np.mean([np.mean(np.abs(e) < 2 * s) for e, s in trusted]) < 0.6
+
+
 def test_constant_velocity_kalman_tracks_a_moving_coin():
     x, speed = coin_path()
     sigma = 1e-4
