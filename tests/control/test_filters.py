@@ -353,7 +353,8 @@ def test_the_mpcs_bias_filter_claims_no_more_than_the_observations_hold():
 
 
 @pytest.mark.parametrize("field, value", [("release_slope_m", -1e-5), ("release_slope_m", float("nan")),
-                                          ("innovation_window", -1), ("process_std_m", 0.0)])
+                                          ("innovation_window", -1), ("process_std_m", 0.0),
+                                          ("hold_coast", 1)])
 def test_bad_estimator_settings_are_refused_naming_the_key(field, value):
     """A preset's ``[mpc.estimator]`` value out of range exits with the key's full name before any
     episode runs. Broken once (the release slope's check left out): NaN and -1e-5 were taken."""
