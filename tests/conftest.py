@@ -13,9 +13,21 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
+# The in-session trainings (the ``trained`` fixture) are chaotic in the last bits: the same seed
+# gives other weights on an AVX-512 Intel than on an AVX2 AMD, and tests tuned on one failed on
+# the other. Pinning the code paths of torch's own kernels (ATEN_CPU_CAPABILITY), of MKL's BLAS
+# (conditional numerical reproducibility) and of oneDNN's LSTM (at most AVX2) makes a training
+# the same on every x86-64 machine with AVX2; they must be set before torch loads
+# (tests/test_reproducible.py checks them).
+if "torch" in sys.modules:
+    raise RuntimeError("tests/conftest.py must pin torch's code paths before torch is imported")
+os.environ.setdefault("ATEN_CPU_CAPABILITY", "default")
+os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
+os.environ.setdefault("ONEDNN_MAX_CPU_ISA", "AVX2")
 
-from deapull import scene as scenes
+import pytest  # noqa: E402
+
+from deapull import scene as scenes  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"

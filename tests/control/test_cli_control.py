@@ -271,7 +271,8 @@ def test_the_inference_engine_is_chosen_from_the_cli(base, tmp_path, trained, mo
         assert json.loads((out / "run.json").read_text())["config"]["mpc"]["inference"]["engine"] == engine
         rows[engine] = _rows(out / "control.csv")[0]
     assert seen == ["torch", "native"]
-    assert rows["torch"]["final_x_m"] == rows["native"]["final_x_m"]
+    # the two engines agree to round-off (the estimates differ in the last bits, and so the plans)
+    assert float(rows["torch"]["final_x_m"]) == pytest.approx(float(rows["native"]["final_x_m"]), rel=1e-6)
     assert float(rows["torch"]["inferred_mu_b"]) != inference.INITIAL["mu_b"]          # the estimate moved
     for field in ("inferred_mass_kg", "inferred_mu_b", "inferred_mu_t"):
         assert float(rows["native"][field]) == pytest.approx(float(rows["torch"][field]), rel=1e-6), field
