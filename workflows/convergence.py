@@ -256,11 +256,17 @@ def _series(m: dict) -> dict:
 def reused_metrics(previous: dict, study: dict, names) -> dict:
     """The metrics of the cases ``names`` from a previously published result of the same study, where
     it holds the case with the same overrides: case -> its metrics (x(t) from its stored series, where
-    it has one), marked ``reused``. A case whose overrides changed is not taken."""
+    it has one), marked ``reused``. A case whose overrides changed, or whose resolved scene differs from
+    the one it was solved on (its ``scene_digest``: a changed scene file), is not taken."""
+    from deapull.workflows.runner import resolve_cases, scene_digest
     out = {}
+    stamped = {n for n in names if "scene_digest" in previous.get("cases", {}).get(n, {})}
+    resolved = resolve_cases([c for c in cases_of(study) if c.name in stamped])[0] if stamped else {}
     for name in names:
         old = previous.get("cases", {}).get(name)
         if old is None or previous.get("overrides", {}).get(name) != study["cases"][name]:
+            continue
+        if "scene_digest" in old and (name not in resolved or old["scene_digest"] != scene_digest(resolved[name])):
             continue
         m = {k: v for k, v in old.items() if k != "x_series_mm"}
         if "x_series_mm" in old:
@@ -370,7 +376,8 @@ def run_study(name_or_path, out: Path, comm, ranks_per_case: int = 1, publish: P
     for r in results:
         if r and r.get("status") == "ok":
             metrics[r["case"]] = case_metrics(Path(out) / r["dataset"], float(study["study"]["time_s"]))
-            metrics[r["case"]].update(dofs=r["dofs"], wall_s=r["wall_s"], ranks=r["ranks"])
+            metrics[r["case"]].update(dofs=r["dofs"], wall_s=r["wall_s"], ranks=r["ranks"],
+                                      **({"scene_digest": r["scene_digest"]} if "scene_digest" in r else {}))
     failed = {r["case"]: r.get("reason", "") for r in results if r.get("status") not in ("ok", "not run")}
     previous = json.loads(Path(reuse).read_text()) if reuse is not None else {}
     metrics.update(reused_metrics(previous, study, [n for n in study["cases"] if n not in metrics]))

@@ -54,7 +54,7 @@ def test_a_study_naming_a_case_it_lacks_is_refused_before_any_run(tmp_path):
     with pytest.raises(InputError, match="unknown study"):
         convergence.load_study("no_such_study")
     shipped = convergence.load_study("contact_reference")
-    assert shipped["checks"]["corner"] == "default" and "rim band x 2" in shipped["checks"]["converged"]
+    assert shipped["checks"]["corner"] == "corner" and shipped["checks"]["default"] == "default" and "rim band x 2" in shipped["checks"]["converged"]
 
 
 def test_the_committed_reference_bound_is_its_rungs_bound():
@@ -159,6 +159,23 @@ def test_a_published_case_is_reused_only_with_its_overrides_and_keeps_its_x_of_t
     assert convergence.mae_mm(got["a"], reused_b) == pytest.approx(convergence.mae_mm(metrics["a"], metrics["b"]),
                                                                    rel=1e-3)
     assert math.isnan(convergence.mae_mm({"x_at_t_mm": 1.0}, metrics["a"]))
+
+
+def test_a_published_case_solved_on_another_scene_file_is_not_reused():
+    """A published case carries the digest of the resolved scene it was solved on: with the scene file
+    changed under the same overrides (the data fidelity moved), it is solved again, not taken. Broken
+    once with the digest's comparison left out: the stale case was taken."""
+    from deapull import scene as scenes
+    from deapull.workflows.runner import scene_digest
+    study = {"study": {"scene": "coin_pull", "setup": "C3"},
+             "cases": {"now": ["contact.quadrature_degree=42"], "before": ["contact.quadrature_degree=42"]}}
+    today = scene_digest(scenes.load("coin_pull", setup="C3", overrides=("contact.quadrature_degree=42",)))
+    other = scene_digest(scenes.load("coin_pull", setup="C3", overrides=("contact.quadrature_degree=42",
+                                                                         "mesh.n_length=8")))
+    previous = {"cases": {"now": {"x_at_t_mm": -1.0, "scene_digest": today},
+                          "before": {"x_at_t_mm": -1.1, "scene_digest": other}},
+                "overrides": study["cases"]}
+    assert list(convergence.reused_metrics(previous, study, ["now", "before"])) == ["now"]
 
 
 def test_the_committed_reference_is_its_study_summarised_from_its_own_cases():
