@@ -258,21 +258,25 @@ def reused_metrics(previous: dict, study: dict, names) -> dict:
     it holds the case with the same overrides: case -> its metrics (x(t) from its stored series, where
     it has one), marked ``reused``. A case whose overrides changed, or whose resolved scene differs from
     the one it was solved on (its ``scene_digest``: a changed scene file), is not taken."""
-    from deapull.workflows.runner import resolve_cases, scene_digest
     out = {}
-    stamped = {n for n in names if "scene_digest" in previous.get("cases", {}).get(n, {})}
-    resolved = resolve_cases([c for c in cases_of(study) if c.name in stamped])[0] if stamped else {}
     for name in names:
         old = previous.get("cases", {}).get(name)
         if old is None or previous.get("overrides", {}).get(name) != study["cases"][name]:
             continue
-        if "scene_digest" in old and (name not in resolved or old["scene_digest"] != scene_digest(resolved[name])):
+        if "scene_digest" in old and not _solved_on_this_scene(study, name, old["scene_digest"]):
             continue
         m = {k: v for k, v in old.items() if k != "x_series_mm"}
         if "x_series_mm" in old:
             m.update(t=SERIES, x=np.asarray(old["x_series_mm"]) * 1e-3)
         out[name] = {**m, "reused": True}
     return out
+
+
+def _solved_on_this_scene(study: dict, name: str, digest: str) -> bool:
+    """Whether case ``name`` of ``study`` resolves today to the scene whose digest is ``digest``."""
+    from deapull.workflows.runner import resolve_cases, scene_digest
+    resolved, _ = resolve_cases([c for c in cases_of(study) if c.name == name])
+    return name in resolved and scene_digest(resolved[name]) == digest
 
 
 def keep_published_mae(result: dict, previous: dict) -> None:

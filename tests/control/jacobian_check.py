@@ -29,7 +29,8 @@ def assert_jacobians_match_central_differences(fast, xi, nu, A, B, dv_scale: flo
     """[A B] against central differences of ``fast`` on the rows whose stick/slip state and
     voltage clipping hold over ±h (errors there are O(h), elsewhere round-off): more than 100
     such rows, 95 % of them within 1e-4 relative beyond the difference's own round-off (a few ulps
-    of the outputs over 2h, which an entry that is 0 in [A B] shows as ~1e-9). ``dv_scale``: V's change per unit ν in ξ's V unit."""
+    of the outputs over 2h, which an entry that is 0 in [A B] shows as ~1e-9). ``dv_scale``: V's
+    change per unit ν in ξ's V unit."""
     n = xi.shape[1]
     fd = torch.empty(len(xi), n, n + 1, dtype=F64)
     noise = torch.zeros(len(xi), n, n + 1, dtype=F64)
