@@ -28,7 +28,8 @@ def cmd_fidelity(args) -> int:
             return ladder.ladder_rows(models, args.surrogate_data, setup_name, args.out)
         extra = surrogate_rows
     rows = run_ladder(args.scene, args.setup, args.out, MPI.COMM_WORLD, args.rungs, args.overrides,
-                      names(args.only), args.ranks_per_case, extra_rows=extra, fidelity=args.fidelity)
+                      names(args.only), args.ranks_per_case, extra_rows=extra, fidelity=args.fidelity,
+                      study=args.study)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print(fidelity_table(rows))
@@ -40,7 +41,7 @@ def cmd_fidelity(args) -> int:
 def cmd_stability(args) -> int:
     from mpi4py import MPI  # lazy: importing mpi4py initialises MPI; the CLI starts without it
     rows = run_stability(args.out, MPI.COMM_WORLD, args.protocol, names(args.cases), args.overrides,
-                         args.ranks_per_case, args.fidelity)
+                         args.ranks_per_case, args.fidelity, args.study)
     if MPI.COMM_WORLD.rank != 0:
         return 0
     print(stability_table(rows))
@@ -74,6 +75,8 @@ def register(sub) -> None:
                                         "(run under mpirun -n N; resumes)")
     add_scene_args(p, scene_default="coin_pull",
                    set_help="override one scene key in every rung (validated like the file); repeatable")
+    p.add_argument("--study", default="fidelity", help="the ladder: a study of studies/ by name, or a TOML file "
+                                                       "(default fidelity)")
     p.add_argument("--rungs", default="quick", choices=("quick", "full"),
                    help="quick: base step end/100 plus the shipped step; full: the scene's steps (default quick)")
     p.add_argument("--only", default="", help="comma-separated rung names (default: all; the reference is "
@@ -88,6 +91,8 @@ def register(sub) -> None:
 
     p = sub.add_parser("stability", help="stiff and extreme cases, each a row: converged or why not "
                                          "(run under mpirun -n N; resumes)")
+    p.add_argument("--study", default="stability", help="the cases: a study of studies/ by name, or a TOML file "
+                                                        "(default stability)")
     p.add_argument("--cases", default="", help="comma-separated case names (default: all)")
     # its cases are of several scenes: --fidelity applies to each case whose scene defines it
     # (workflows/stability.py); free_bending's pull-in runs as written and its row says so

@@ -29,7 +29,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -37,11 +36,10 @@ import numpy as np
 from deapull import dataset
 from deapull.errors import InputError
 from deapull.io import write_json
-from deapull.workflows.args import shipped_toml
+from deapull.workflows import study_file
 
 log = logging.getLogger(__name__)
 
-STUDY_DIR = Path(__file__).resolve().parents[1] / "studies"
 SCHEMA = 1
 #: the common time grid of the x(t) differences (s): every record of a 1 s ramp lies on 1/720 s steps
 GRID = np.linspace(0.0, 1.0, 1001)
@@ -50,21 +48,11 @@ GRID = np.linspace(0.0, 1.0, 1001)
 SERIES = np.linspace(0.0, 1.0, 201)
 
 
-def study_path(name_or_path: str | Path) -> Path:
-    """A study shipped in ``studies/`` by name, or a path to a TOML file."""
-    return shipped_toml(name_or_path, STUDY_DIR, "--study", "study")
-
-
 def load_study(name_or_path: str | Path) -> dict:
     """The study file, checked: every ladder and check names defined cases, each ladder three."""
-    path = study_path(name_or_path)
-    try:
-        study = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise InputError(f"{path}: not valid TOML ({err})") from None
-    for key in ("study", "cases", "ladders"):
-        if key not in study:
-            raise InputError(f"{path}: missing [{key}]")
+    path, study = study_file.read(name_or_path)
+    if "ladders" not in study:
+        raise InputError(f"{path}: missing [ladders]")
     cases = study["cases"]
     for name, overrides in cases.items():
         if not isinstance(overrides, list) or not all(isinstance(o, str) and "=" in o for o in overrides):

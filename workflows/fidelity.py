@@ -2,20 +2,20 @@
 
 A *rung* is one FEM run of the same scene and setup with one discretisation: element
 (P1 / P2 tetrahedra, Q2 hexahedra), formulation (mixed u–p or pure displacement),
-resolution (coarse, the shipped mesh, finer in-plane, one or two uniform refinements)
-and largest time step. Every rung is compared with the *reference rung* (the finest
-affordable run: Q2–Q1 hexahedra refined once, half the time step): MAE of the coin
-position x(t) and of the pressing force Fy(t), both interpolated onto the reference's
-t, and the error in coin travel. Pure displacement needs ν < 0.5, so those rungs use
-ν = 0.49; their error includes that modelling change (rung ``hex-Q2-mixed-L0-nu049``
-measures it alone).
+resolution (coarse, the scene's mesh, finer in-plane, one or two uniform refinements)
+and largest time step. The rungs are data, ``studies/fidelity.toml``
+(:mod:`deapull.workflows.study_file`), each relative to the scene as loaded, so a tiny base mesh
+gives a tiny ladder. Every rung is compared with the study's *reference rung* (the finest
+affordable run: Q2–Q1 hexahedra refined once, half the time step): MAE of the coin position x(t)
+and of the pressing force Fy(t), both interpolated onto the reference's t, and the error in coin
+travel. Pure displacement needs ν < 0.5, so those rungs use ν = 0.49; their error includes that
+modelling change (rung ``hex-Q2-mixed-L0-nu049`` measures it alone).
 
-Resolutions and steps are relative to the scene as loaded (with ``--set``), so a tiny
-base mesh gives a tiny ladder. ``rungs = "full"`` keeps the scene's protocol and steps
-(coin_pull: 1 s, dt_max 1/720 s, ≥ 720 points). ``"quick"`` keeps the 1 s protocol but
-makes the ladder's base step end/100 (0.01 s, ~100 points; the flow is quasi-static, so
-this moves the coin travel by ~0.2 %) and adds the shipped discretisation at the shipped
-step as its own rung, so the default is still placed on the ladder.
+``rungs = "full"`` keeps the scene's protocol and steps (coin_pull: 1 s, dt_max 1/720 s, ≥ 720
+points). ``"quick"`` keeps the 1 s protocol but makes the ladder's base step end/100 (0.01 s, ~100
+points; the flow is quasi-static, so this moves the coin travel by ~0.2 %) and adds the rung with
+``steps = "scene"`` (the scene's discretisation at the scene's step), so the default is still
+placed on the ladder.
 
 The rungs run on the study runner (:mod:`deapull.workflows.runner`): over MPI rank groups,
 one atomic result JSON per rung, resumable.
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,69 +31,16 @@ import numpy as np
 from deapull import dataset, provenance, scene as scenes
 from deapull.errors import InputError
 from deapull.io import atomic_write, cell as fmt, markdown_table, write_csv, write_json, write_text
+from deapull.workflows import study_file
 from deapull.workflows.runner import Case, run_cases
 
 log = logging.getLogger(__name__)
 
-
-# --- the ladder ------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Rung:
-    """One discretisation, relative to the scene as loaded.
-
-    ``resolution``: ``coarse`` (half the divisions in plane), ``base`` (as loaded), ``fine``
-    (twice in plane), ``L1`` / ``L2`` (mesh.level + 1 / + 2: every direction × 2 / × 4).
-    ``dt_factor`` scales the ladder's base ``time.dt_max_s``; ``shipped_dt`` uses the scene's
-    own step instead (quick ladder only); ``poisson_ratio`` None keeps the scene's.
-    """
-    name: str
-    cell: str
-    order: int
-    formulation: str
-    resolution: str = "base"
-    dt_factor: float = 1.0
-    poisson_ratio: float | None = None
-    shipped_dt: bool = False
-
-    @property
-    def elements(self) -> str:
-        family = "Q" if self.cell == "hexahedron" else "P"
-        u = f"{family}{self.order}"
-        if self.formulation == "displacement":
-            return f"{u} {self.cell[:3]}"
-        return f"{u}–{family}{max(self.order - 1, 1)} {self.cell[:3]} mixed"
-
-
-NU_DISPLACEMENT = 0.49        # pure displacement needs ν < 0.5
-REFERENCE = "hex-Q2-mixed-L1-dthalf"
-DEFAULT = "hex-Q2-mixed-L0"            # the shipped discretisation (the shipped step in a full ladder)
-SHIPPED = "hex-Q2-mixed-L0-dtshipped"  # the same at the shipped step, in a quick ladder
-HEX_Q2 = dict(cell="hexahedron", order=2)
-TET_P2 = dict(cell="tetrahedron", order=2)
-TET_P1 = dict(cell="tetrahedron", order=1)
-
-LADDER = (
-    Rung("hex-Q2-mixed-coarse", **HEX_Q2, formulation="mixed", resolution="coarse"),
-    Rung(DEFAULT, **HEX_Q2, formulation="mixed"),
-    Rung(SHIPPED, **HEX_Q2, formulation="mixed", shipped_dt=True),
-    Rung("hex-Q2-mixed-L0-dt2x", **HEX_Q2, formulation="mixed", dt_factor=2.0),
-    Rung("hex-Q2-mixed-L0-dthalf", **HEX_Q2, formulation="mixed", dt_factor=0.5),
-    Rung("hex-Q2-mixed-fine", **HEX_Q2, formulation="mixed", resolution="fine"),
-    Rung("hex-Q2-mixed-L1", **HEX_Q2, formulation="mixed", resolution="L1"),
-    Rung(REFERENCE, **HEX_Q2, formulation="mixed", resolution="L1", dt_factor=0.5),
-    Rung("hex-Q2-mixed-L0-nu049", **HEX_Q2, formulation="mixed", poisson_ratio=NU_DISPLACEMENT),
-    Rung("hex-Q2-disp-L0-nu049", **HEX_Q2, formulation="displacement", poisson_ratio=NU_DISPLACEMENT),
-    Rung("tet-P2-mixed-L0", **TET_P2, formulation="mixed"),
-    Rung("tet-P2-disp-L0-nu049", **TET_P2, formulation="displacement", poisson_ratio=NU_DISPLACEMENT),
-    Rung("tet-P1-disp-L0-nu049", **TET_P1, formulation="displacement", poisson_ratio=NU_DISPLACEMENT),
-    Rung("tet-P1-disp-L1-nu049", **TET_P1, formulation="displacement", resolution="L1",
-         poisson_ratio=NU_DISPLACEMENT),
-    Rung("tet-P1-disp-L2-nu049", **TET_P1, formulation="displacement", resolution="L2",
-         poisson_ratio=NU_DISPLACEMENT),
-)
-RUNG_SETS = ("quick", "full")
+PROTOCOLS = ("quick", "full")
 STUDY_STEPS = 100      # base steps of a quick study over the protocol
+#: the keys of a rung besides ``set`` and ``description``: its resolution's label, and ``steps =
+#: "scene"`` for the rung at the scene's own steps (a quick ladder only)
+RUNG_KEYS = {"resolution": None, "steps": ("scene",)}
 
 
 def protocol_overrides(base, protocol: str) -> tuple[str, ...]:
@@ -105,61 +51,55 @@ def protocol_overrides(base, protocol: str) -> tuple[str, ...]:
     return (f"time.dt_max_s={dt!r}", f"time.dt_initial_s={min(base.time.dt_initial_s, dt)!r}")
 
 
-def _dt_overrides(dt: float, base) -> list[str]:
-    return [f"time.dt_max_s={dt!r}", f"time.dt_initial_s={min(base.time.dt_initial_s, dt)!r}"]
+def elements(scene) -> str:
+    """The discretisation of a scene in words: ``Q2–Q1 hex mixed``, ``P1 tet``."""
+    cell, order = scene.mesh.cell, scene.mesh.order
+    family = "Q" if cell == "hexahedron" else "P"
+    if scene.solver.formulation == "displacement":
+        return f"{family}{order} {cell[:3]}"
+    return f"{family}{order}–{family}{max(order - 1, 1)} {cell[:3]} mixed"
 
 
-def rung_overrides(rung: Rung, base, shipped) -> tuple[str, ...]:
-    """The ``--set`` strings that turn the ladder's base scene into this rung (``shipped``: the
-    scene as loaded, before the quick protocol)."""
-    m = base.mesh
-    out = [f"mesh.cell='{rung.cell}'", f"mesh.order={rung.order}", f"solver.formulation='{rung.formulation}'"]
-    if rung.resolution == "coarse":
-        out += [f"mesh.n_length={max(m.n_length // 2, 1)}", f"mesh.n_width={max(m.n_width // 2, 1)}"]
-    elif rung.resolution == "fine":
-        out += [f"mesh.n_length={2 * m.n_length}", f"mesh.n_width={2 * m.n_width}"]
-    elif rung.resolution in ("L1", "L2"):
-        out.append(f"mesh.level={m.level + int(rung.resolution[1])}")
-    if rung.shipped_dt:
-        out += [f"time.dt_max_s={shipped.time.dt_max_s!r}", f"time.dt_initial_s={shipped.time.dt_initial_s!r}"]
-    elif rung.dt_factor != 1.0:
-        out += _dt_overrides(base.time.dt_max_s * rung.dt_factor, base)
-    if rung.poisson_ratio is not None:
-        out.append(f"dea.poisson_ratio={rung.poisson_ratio!r}")
-    return tuple(out)
+def ladder(study: str | Path = "fidelity") -> tuple[dict, dict]:
+    """``[study]`` and the rungs of a ladder file; its reference and defaults name rungs."""
+    head, entries = study_file.load(study, RUNG_KEYS)
+    for key in ("reference", "default", "quick_default"):
+        if head.get(key) not in entries:
+            raise InputError(f"{head['path']}: study.{key} = {head.get(key)!r}: expected one of its rungs "
+                             f"({', '.join(entries)})")
+    return head, entries
 
 
 def ladder_cases(scene_name: str, setup, rungs: str = "quick", overrides=(), only=None,
-                 fidelity: str | None = None) -> list[Case]:
+                 fidelity: str | None = None, study: str | Path = "fidelity") -> list[Case]:
     """The ladder's cases; ``only`` picks rungs by name (the reference is always added).
-    ``fidelity`` names one of the scene's fidelities (``resolved``), applied to every rung before
-    ``overrides``: each rung then refines or coarsens that fidelity's mesh and steps."""
+    ``fidelity`` names one of the scene's fidelities, applied to every rung before ``overrides``:
+    each rung then refines or coarsens that fidelity's mesh and steps."""
     overrides = (*scenes.fidelity_overrides(scene_name, fidelity), *overrides)
-    if rungs not in RUNG_SETS:
-        raise InputError(f"--rungs {rungs!r}: expected one of {', '.join(RUNG_SETS)}")
-    available = [r.name for r in LADDER if not (r.shipped_dt and rungs == "full")]
-    chosen = list(only) if only else list(available)
-    unknown = [n for n in chosen if n not in available]
-    if unknown:
-        raise InputError(f"--only {unknown[0]!r}: unknown rung for --rungs {rungs}; allowed: {', '.join(available)}")
-    if REFERENCE not in chosen:
-        chosen.append(REFERENCE)
+    if rungs not in PROTOCOLS:
+        raise InputError(f"--rungs {rungs!r}: expected one of {', '.join(PROTOCOLS)}")
+    head, entries = ladder(study)
+    available = {n: e for n, e in entries.items() if not (e.keys.get("steps") and rungs == "full")}
+    chosen = study_file.pick(available, only, f"--only (rungs of --rungs {rungs})")
+    if head["reference"] not in [e.name for e in chosen]:
+        chosen.append(entries[head["reference"]])
     shipped = scenes.load(scene_name, setup=setup, overrides=overrides)
     protocol = protocol_overrides(shipped, rungs)
     base = scenes.load(scene_name, setup=setup, overrides=(*overrides, *protocol))
-    default = SHIPPED if rungs == "quick" else DEFAULT
+    common = study_file.resolve(head["set"], base, "study.set")
+    default = head["quick_default"] if rungs == "quick" else head["default"]
     cases = []
-    for rung in LADDER:
-        if rung.name not in chosen:
-            continue
-        sets = rung_overrides(rung, base, shipped)
-        sc = scenes.load(scene_name, setup=setup, overrides=(*overrides, *protocol, *sets))
-        meta = {"kind": "fem", "elements": rung.elements, "cell": rung.cell, "order": rung.order,
-                "formulation": rung.formulation, "resolution": rung.resolution,
+    for rung in (e for e in available.values() if e in chosen):
+        steps = () if rung.keys.get("steps") else protocol
+        sets = (*common, *study_file.resolve(rung.set, base, f"cases.{rung.name}"))
+        sc = scenes.load(scene_name, setup=setup, overrides=(*overrides, *steps, *sets))
+        resolution = rung.keys.get("resolution", "base")
+        meta = {"kind": "fem", "elements": elements(sc), "cell": sc.mesh.cell, "order": sc.mesh.order,
+                "formulation": sc.solver.formulation, "resolution": resolution,
                 "poisson_ratio": sc.dea.poisson_ratio, "dt_max_s": sc.time.dt_max_s, "protocol": rungs,
-                "is_reference": rung.name == REFERENCE, "is_default": rung.name == default}
-        cases.append(Case(rung.name, scene_name, base.setup or None, (*overrides, *protocol, *sets),
-                          f"{rung.elements}, {rung.resolution} mesh, dt_max {sc.time.dt_max_s:.3g} s", meta))
+                "is_reference": rung.name == head["reference"], "is_default": rung.name == default}
+        cases.append(Case(rung.name, scene_name, base.setup or None, (*overrides, *steps, *sets),
+                          f"{meta['elements']}, {resolution} mesh, dt_max {sc.time.dt_max_s:.3g} s", meta))
     return cases
 
 
@@ -362,7 +302,7 @@ def ranks_line(rows) -> str:
 def notes(rows, header: str) -> list[str]:
     """What the ladder refined (its header), its reference rung, the ranks and the default's verdict."""
     ref = next((r for r in rows if r.get("is_reference")), {})
-    return [header, f"Reference rung: `{ref.get('case', REFERENCE)}` "
+    return [header, f"Reference rung: `{ref.get('case', 'missing')}` "
             f"({fmt(ref.get('dofs'), 'd')} dofs, {fmt(ref.get('ranks'), 'd')} rank(s), solve {fmt(ref.get(TIME_KEY), '.1f')} s, "
             f"travel {fmt(ref.get('travel_mm'), '.3f')} mm, status {ref.get('status', 'missing')}).", ranks_line(rows),
             default_verdict(rows)]
@@ -394,14 +334,15 @@ def report(rows, out_dir: Path, header: str = "") -> list[dict]:
 
 
 def run_ladder(scene_name: str, setup, out_dir, comm, rungs: str = "quick", overrides=(), only=None,
-               ranks_per_case: int = 1, extra_rows=None, fidelity: str | None = None) -> list[dict] | None:
+               ranks_per_case: int = 1, extra_rows=None, fidelity: str | None = None,
+               study: str | Path = "fidelity") -> list[dict] | None:
     """Run (or resume) the ladder and write its report; rank 0 returns the rows, others None.
 
     ``extra_rows``: a callable run on rank 0 after the FEM rungs, returning more rows with
     a ``dataset`` of (t, x, Fy) to compare with the reference (the surrogates' rows,
     :func:`deapull.workflows.ladder.ladder_rows`)."""
     out_dir = Path(out_dir)
-    cases = ladder_cases(scene_name, setup, rungs, overrides, only, fidelity)
+    cases = ladder_cases(scene_name, setup, rungs, overrides, only, fidelity, study)
     results = run_cases(cases, out_dir, comm, ranks_per_case, desc="fidelity")
     if comm.rank != 0:
         return None
@@ -411,8 +352,9 @@ def run_ladder(scene_name: str, setup, out_dir, comm, rungs: str = "quick", over
     # row, stored or new (and a surrogate compared with them), is at this call's fidelity
     results = [{**r, "fidelity": fidelity or AS_WRITTEN} for r in results]
     setup_name = cases[0].setup or "-"
-    header = (f"Scene `{scene_name}`, fidelity `{fidelity or AS_WRITTEN}`, setup `{setup_name}`, rungs `{rungs}`"
-              f"{f' (base step end/{STUDY_STEPS}; the shipped step in rung {SHIPPED})' if rungs == 'quick' else ''}, "
+    scene_steps = next((c.name for c in cases if c.meta["is_default"]), "-")
+    header = (f"Study `{study}` on scene `{scene_name}`, fidelity `{fidelity or AS_WRITTEN}`, setup `{setup_name}`, "
+              f"rungs `{rungs}`{f' (base step end/{STUDY_STEPS}; the scene step in rung {scene_steps})' if rungs == 'quick' else ''}, "
               f"{comm.size} MPI rank(s) in this call, {ranks_per_case} per rung; extra --set: "
               f"{' '.join(overrides) or 'none'}. {provenance.summary()}.")
     return report(results, out_dir, header)

@@ -1,19 +1,18 @@
 """Numerical stability of the FEM: stiff and extreme cases (``deapull stability``).
 
-Each case is the coin_pull scene (setup C3) — or free_bending for the free pull-in —
-with one thing pushed to an extreme: near- and fully-incompressible material in both
-formulations, contact penalty from 1e-2 to 1e4 × the scene's, voltage far beyond
-pull-in, friction coefficients at 0 and 1, coin mass × 0.1 and × 10, a Gent material
-near locking, tiny and huge time steps and a first step forced too large. Every case is
-a row: converged or not, Newton iterations, cut-backs, the smallest step, the largest
-penetration, the largest coin force-balance residual, wall time, and for a failure
-PETSc's reason with the time and voltage where it happened. A scene that validation
-rejects (pure displacement at ν = 0.5) is a row ``rejected: <message>``.
+The cases are data, ``studies/stability.toml`` (:mod:`deapull.workflows.study_file`): the
+coin_pull scene (setup C3) — or free_bending for the free pull-in — with one thing pushed to an
+extreme: near- and fully-incompressible material in both formulations, contact penalty from 1e-2
+to 1e4 × the scene's, voltage far beyond pull-in, friction coefficients at 0 and 1, coin mass × 0.1
+and × 10, a Gent material near locking, tiny and huge time steps and a first step forced too large.
+Every case is a row: converged or not, Newton iterations, cut-backs, the smallest step, the largest
+penetration, the largest coin force-balance residual, wall time, and for a failure PETSc's reason
+with the time and voltage where it happened. A scene that validation rejects (pure displacement at
+ν = 0.5) is a row ``rejected: <message>``.
 
-Protocol: ``quick`` (default) keeps the 1 s, 0 → V_max ramp on the shipped mesh with a
-base step of 0.01 s (~100 points, :data:`deapull.workflows.fidelity.STUDY_STEPS`); ``full`` keeps
-the scene's steps. The small-step case compresses the ramp into a tenth of the time so that its
-1e-4 s steps (for 1 s) cover the whole ramp in 1000 steps.
+Protocol: ``quick`` (default) keeps the 1 s, 0 → V_max ramp on the scene's mesh with a base step of
+0.01 s (~100 points, :func:`deapull.workflows.fidelity.protocol_overrides`); ``full`` keeps the
+scene's steps.
 
 Pull-in is *detected*, not crashed into: the step that cannot be solved after the
 cut-backs ends the run with :class:`fem_solver.stepping.SolveFailed`, and the row records
@@ -24,108 +23,61 @@ the collapse of the accepted voltage increments (``dV_collapse``) as the cut-bac
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 from deapull import provenance, scene as scenes
 from deapull.errors import InputError
 from deapull.io import cell as fmt, markdown_of, table_record, write_csv, write_json, write_text
-from deapull.workflows.fidelity import protocol_overrides
+from deapull.workflows import study_file
+from deapull.workflows.fidelity import PROTOCOLS, protocol_overrides
 from deapull.workflows.runner import Case, run_cases
 
-BASE_SCENE, BASE_SETUP = "coin_pull", "C3"
 CONVERGED, INSTABILITY, REJECTED = "converged", "instability", "rejected"
-POISSON_RATIOS = (0.45, 0.49, 0.499, 0.4999, 0.5)
-PENALTY_FACTORS = (1e-2, 1e2, 1e4)
-PULL_IN_V = 1500.0
-GENT_LOCKING_I1 = 0.1          # estimated I1 - 3 at 400 V: a few 1e-2 (~6 % free actuation strain)
-TINY_COMPRESSION, TINY_STEPS = 10.0, 1000   # dt-tiny: ramp over end/10 in 1000 steps (1 s: 1e-4 s steps)
-HUGE_DT_FRACTION, FORCED_DT_FRACTION = 0.5, 0.2
+#: the keys of a stability case besides ``set`` and ``description``
+CASE_KEYS = {"scene": None, "expected": (CONVERGED, INSTABILITY, REJECTED)}
 
 
-@dataclass(frozen=True)
-class Spec:
-    name: str
-    overrides: tuple[str, ...]
-    description: str
-    expected: str = CONVERGED
-    scene: str = BASE_SCENE
-
-
-def _specs(base) -> list[Spec]:
-    """Every case, built from the loaded base scene (relative factors become absolute values)."""
-    end = base.load.end_time_s
-    specs = [Spec("baseline", (), "shipped physics (nu 0.5, mixed, penalty x1) on the study protocol")]
-    for nu in POISSON_RATIOS:
-        specs.append(Spec(f"nu{nu:g}-disp", ("solver.formulation='displacement'", f"dea.poisson_ratio={nu!r}"),
-                          f"pure displacement, nu = {nu:g}", REJECTED if nu == 0.5 else CONVERGED))
-    for nu in POISSON_RATIOS[:-1]:
-        specs.append(Spec(f"nu{nu:g}-mixed", (f"dea.poisson_ratio={nu!r}",), f"mixed u-p, nu = {nu:g}"))
-    for f in PENALTY_FACTORS:
-        specs.append(Spec(f"penalty-x{f:g}", (f"contact.penalty_N_m3={base.contact.penalty_N_m3 * f!r}",),
-                          f"contact penalty x{f:g} the scene's ({base.contact.penalty_N_m3 * f:.3g} N/m^3)"))
-    for scene in ("free_bending", "coin_pull"):
-        specs.append(Spec(f"pullin-{scene.replace('_', '-')}", (f"load.voltage_max_V={PULL_IN_V!r}",),
-                          f"{scene}: 0 -> {PULL_IN_V:g} V, far beyond pull-in", INSTABILITY, scene))
-    for key in ("mu_t", "mu_b"):
-        for mu in (0.0, 1.0):
-            specs.append(Spec(f"{key}-{mu:g}", (f"coin.{key}={mu!r}",), f"coin.{key} = {mu:g}"))
-    for f in (0.1, 10.0):
-        rho = base.coin.density_kg_m3 * f
-        specs.append(Spec(f"mass-x{f:g}", (f"coin.density_kg_m3={rho!r}",), f"coin mass x{f:g} (density {rho:g})"))
-    specs.append(Spec("gent-locking", ("dea.material='gent'", f"dea.gent_locking_I1={GENT_LOCKING_I1!r}"),
-                      f"Gent material near locking (J_m = I1 - 3 at locking = {GENT_LOCKING_I1:g})"))
-    ramp = end / TINY_COMPRESSION
-    tiny = ramp / TINY_STEPS
-    specs.append(Spec("dt-tiny", (f"load.end_time_s={ramp!r}", f"load.ramp_time_s={ramp!r}",
-                                  f"time.dt_max_s={tiny!r}", f"time.dt_initial_s={tiny!r}", f"time.dt_min_s={tiny / 1e3!r}"),
-                      f"tiny steps: dt_max {tiny:g} s, the ramp compressed into {ramp:g} s"))
-    huge = end * HUGE_DT_FRACTION
-    specs.append(Spec("dt-huge", (f"time.dt_max_s={huge!r}",), f"huge steps allowed: dt_max {huge:g} s "
-                      "(grows x1.5 from the first step)"))
-    forced = end * FORCED_DT_FRACTION
-    specs.append(Spec("dt-forced", (f"time.dt_max_s={forced!r}", f"time.dt_initial_s={forced!r}"),
-                      f"first step forced too large: dt_initial = dt_max = {forced:g} s (cut-back must recover)"))
-    return specs
-
-
-def fidelity_of_case(scene: str, fidelity: str | None) -> tuple[str, ...]:
+def fidelity_of_case(scene: str, base_scene: str, fidelity: str | None) -> tuple[str, ...]:
     """``fidelity``'s overrides for a case of ``scene``: the base scene must define it (else
     SceneError naming what it defines); a case of another scene (free_bending's pull-in) takes it
     only where that scene defines it too, and is run as its file is written otherwise."""
-    if not fidelity or (scene != BASE_SCENE and fidelity not in scenes.fidelities_of(scene)):
+    if not fidelity or (scene != base_scene and fidelity not in scenes.fidelities_of(scene)):
         return ()
     return scenes.fidelity_overrides(scene, fidelity)
 
 
-def stability_cases(protocol: str = "quick", overrides=(), names=None, fidelity: str | None = None) -> list[Case]:
-    """The study's cases; ``names`` picks cases (default: all). ``fidelity`` names one of the base
-    scene's fidelities (:func:`fidelity_of_case`), applied before ``overrides``. Bad names, an
-    unknown fidelity or a bad --set raise InputError."""
-    if protocol not in ("quick", "full"):
-        raise InputError(f"--protocol {protocol!r}: expected one of quick, full")
-    fid = fidelity_of_case(BASE_SCENE, fidelity)
-    shipped = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=(*fid, *overrides))
-    study = protocol_overrides(shipped, protocol)
-    base = scenes.load(BASE_SCENE, setup=BASE_SETUP, overrides=(*fid, *overrides, *study))
-    specs = _specs(base)
-    known = [s.name for s in specs]
-    unknown = [n for n in names or () if n not in known]
-    if unknown:
-        raise InputError(f"--cases {unknown[0]!r}: unknown case; allowed: {', '.join(known)}")
-    chosen = [s for s in specs if not names or s.name in names]
-    fids = {scene: fidelity_of_case(scene, fidelity) for scene in {s.scene for s in chosen}}
-    return [Case(s.name, s.scene, BASE_SETUP if s.scene == BASE_SCENE else None,
-                 (*fids[s.scene], *overrides, *study, *s.overrides), _described(s, fidelity, fids[s.scene]),
-                 {"expected": s.expected, "protocol": protocol,
-                  "voltage_max_V": PULL_IN_V if s.expected == INSTABILITY else base.load.voltage_max_V})
-            for s in chosen]
-
-
-def _described(spec: Spec, fidelity: str | None, applied: tuple[str, ...]) -> str:
-    if fidelity and not applied:
-        return f"{spec.description} ({spec.scene} as written: it defines no fidelity {fidelity!r})"
-    return spec.description
+def stability_cases(protocol: str = "quick", overrides=(), names=None, fidelity: str | None = None,
+                    study: str | Path = "stability") -> list[Case]:
+    """The cases of the ``study`` file; ``names`` picks cases (default: all). ``fidelity`` names one of
+    the base scene's fidelities (:func:`fidelity_of_case`), applied before ``overrides``. Bad names,
+    an unknown fidelity, a bad study file or a bad --set raise InputError."""
+    if protocol not in PROTOCOLS:
+        raise InputError(f"--protocol {protocol!r}: expected one of {', '.join(PROTOCOLS)}")
+    head, entries = study_file.load(study, CASE_KEYS)
+    base_scene, base_setup = head["scene"], head.get("setup")
+    fidelity_of_case(base_scene, base_scene, fidelity)      # an unknown fidelity: before any case
+    bases, cases = {}, []
+    for entry in study_file.pick(entries, names, "--cases"):
+        scene = entry.keys.get("scene", base_scene)
+        setup = base_setup if scene == base_scene else None
+        if scene not in bases:
+            fid = fidelity_of_case(scene, base_scene, fidelity)
+            shipped = scenes.load(scene, setup=setup, overrides=(*fid, *overrides))
+            proto = protocol_overrides(shipped, protocol)
+            bases[scene] = fid, proto, scenes.load(scene, setup=setup, overrides=(*fid, *overrides, *proto))
+        fid, proto, base = bases[scene]
+        sets = study_file.resolve(entry.set, base, f"cases.{entry.name}")
+        expected = entry.keys.get("expected", CONVERGED)
+        try:
+            voltage = scenes.load(scene, setup=setup, overrides=(*fid, *overrides, *proto, *sets)).load.voltage_max_V
+        except scenes.SceneError:
+            voltage = base.load.voltage_max_V       # a case validation rejects: a row, solved never
+        described = entry.description
+        if fidelity and not fid:
+            described += f" ({scene} as written: it defines no fidelity {fidelity!r})"
+        cases.append(Case(entry.name, scene, setup, (*fid, *overrides, *proto, *sets), described,
+                          {"expected": expected, "protocol": protocol, "voltage_max_V": voltage}))
+    return cases
 
 
 # --- the table -------------------------------------------------------------------------
@@ -194,15 +146,18 @@ def write_markdown(result: dict, path: Path) -> None:
 
 
 def run_stability(out_dir, comm, protocol: str = "quick", names=None, overrides=(),
-                  ranks_per_case: int = 1, fidelity: str | None = None) -> list[dict] | None:
+                  ranks_per_case: int = 1, fidelity: str | None = None,
+                  study: str | Path = "stability") -> list[dict] | None:
     """Run (or resume) the stability cases; rank 0 writes stability.csv/.md and returns the rows."""
     out_dir = Path(out_dir)
-    cases = stability_cases(protocol, overrides, names, fidelity)
+    cases = stability_cases(protocol, overrides, names, fidelity, study)
     results = run_cases(cases, out_dir, comm, ranks_per_case, desc="stability")
     if comm.rank != 0:
         return None
     rows = [finish_row(r) for r in results]
-    header = (f"Base: `{BASE_SCENE}` setup `{BASE_SETUP}`, fidelity `{fidelity or 'as written'}`, protocol `{protocol}`"
+    head = study_file.load(study, CASE_KEYS)[0]
+    header = (f"Study `{study}`: base `{head['scene']}` setup `{head.get('setup')}`, fidelity "
+              f"`{fidelity or 'as written'}`, protocol `{protocol}`"
               f"{' (1 s ramp, base step 0.01 s)' if protocol == 'quick' else ''}, {comm.size} MPI rank(s), "
               f"{ranks_per_case} per case; extra --set: {' '.join(overrides) or 'none'}. {provenance.summary()}.")
     write_csv(out_dir / "stability.csv", rows, CSV_COLUMNS)

@@ -23,6 +23,8 @@ pytestmark = pytest.mark.fem
 TINY = (*SHARP, "mesh.n_length=4", "mesh.n_width=1", "mesh.coin_size_m=0.004", "load.end_time_s=0.1",
         "load.ramp_time_s=0.1", "time.dt_max_s=0.02", "time.dt_initial_s=0.02", "load.voltage_max_V=200")
 MOVES_MM = 0.1     # the coin travels more than this under TINY (measured 0.19 mm)
+HEAD, RUNGS = fidelity.ladder()        # studies/fidelity.toml
+DEFAULT, REFERENCE, SHIPPED = HEAD["default"], HEAD["reference"], HEAD["quick_default"]
 
 
 def _cli(*args):
@@ -114,15 +116,15 @@ def test_diverging_case_is_a_failed_row_with_petsc_reason(tmp_path):
 
 def test_fidelity_ladder_writes_csv_markdown_and_pareto_plot(tmp_path):
     rows = fidelity.run_ladder("coin_pull", "C3", tmp_path, MPI.COMM_WORLD, rungs="full", overrides=TINY,
-                               only=["hex-Q2-mixed-coarse", fidelity.DEFAULT])
+                               only=["hex-Q2-mixed-coarse", DEFAULT])
     df = pd.read_csv(tmp_path / "fidelity.csv")
-    assert list(df.case) == ["hex-Q2-mixed-coarse", fidelity.DEFAULT, fidelity.REFERENCE]
+    assert list(df.case) == ["hex-Q2-mixed-coarse", DEFAULT, REFERENCE]
     assert set(df.kind) == {"fem"} and set(df.status) == {"ok"}
     ref = df[df.is_reference].iloc[0]
     assert ref.mae_x_mm == 0 and ref.mae_Fy_mN == 0 and ref.dofs > df.dofs.max() / 2
     assert ref.travel_mm > MOVES_MM                 # x(t) errors compare moving coins
     default = df[df.is_default].iloc[0]
-    assert default.case == fidelity.DEFAULT and default.mae_Fy_mN > 0 and 0 < default.solve_s <= default.wall_s
+    assert default.case == DEFAULT and default.mae_Fy_mN > 0 and 0 < default.solve_s <= default.wall_s
     assert 0 < default.mae_x_mm < default.travel_mm and default.travel_mm > MOVES_MM
     assert (tmp_path / "fidelity_pareto.png").stat().st_size > 10_000
     md = (tmp_path / "fidelity.md").read_text()
@@ -135,18 +137,18 @@ def test_fidelity_ladder_writes_csv_markdown_and_pareto_plot(tmp_path):
     # a reference solved on 2 ranks (as `--only <reference> --ranks-per-case 2` does), and a rung
     # stored before results had `ranks` (its dataset's `mpi_ranks` says 1): the rerun reuses both,
     # and the table names the rung whose time is not on the one-core scale
-    for case, edit in ((fidelity.REFERENCE, lambda r: r.update(ranks=2)), ("hex-Q2-mixed-coarse", lambda r: r.pop("ranks"))):
+    for case, edit in ((REFERENCE, lambda r: r.update(ranks=2)), ("hex-Q2-mixed-coarse", lambda r: r.pop("ranks"))):
         path = runner.result_path(tmp_path, case)
         result = json.loads(path.read_text())
         edit(result)
         path.write_text(json.dumps(result))
     fidelity.run_ladder("coin_pull", "C3", tmp_path, MPI.COMM_WORLD, rungs="full", overrides=TINY,
-                        only=["hex-Q2-mixed-coarse", fidelity.DEFAULT])
+                        only=["hex-Q2-mixed-coarse", DEFAULT])
     df = pd.read_csv(tmp_path / "fidelity.csv")
     assert list(df.ranks) == [1, 1, 2]
     md = (tmp_path / "fidelity.md").read_text()
-    assert f"Ranks per rung: 1, except {fidelity.REFERENCE} on 2: the solve time of that rung is not" in md
-    assert f"`{fidelity.REFERENCE}` (" in md and "dofs, 2 rank(s)" in md
+    assert f"Ranks per rung: 1, except {REFERENCE} on 2: the solve time of that rung is not" in md
+    assert f"`{REFERENCE}` (" in md and "dofs, 2 rank(s)" in md
 
 
 def test_resume_skips_completed_case(tmp_path):
@@ -365,11 +367,11 @@ def test_the_ladder_at_a_named_fidelity_refines_that_fidelity_in_every_rung():
     preview = scenes.load("coin_pull", setup="C3", overrides=scenes.fidelity_overrides("coin_pull", "preview"))
     cases = {c.name: c for c in fidelity.ladder_cases("coin_pull", "C3", "quick", ("coin.mu_b=0.3",),
                                                       fidelity="preview")}
-    assert len(cases) == len(fidelity.LADDER)
+    assert len(cases) == len(RUNGS)
 
     def scene(name):
         return scenes.load("coin_pull", setup="C3", overrides=cases[name].overrides)
-    ref, coarse, shipped = scene(fidelity.REFERENCE), scene("hex-Q2-mixed-coarse"), scene(fidelity.SHIPPED)
+    ref, coarse, shipped = scene(REFERENCE), scene("hex-Q2-mixed-coarse"), scene(SHIPPED)
     assert ref.mesh.level == preview.mesh.level + 1 and ref.mesh.tip_zone_m == preview.mesh.tip_zone_m
     assert ref.contact.penalty_N_m3 == preview.contact.penalty_N_m3 and ref.time.dt_max_s == 0.005
     assert coarse.mesh.n_length == preview.mesh.n_length // 2 == 4
