@@ -36,7 +36,7 @@ import numpy as np
 
 from deapull.errors import InputError
 from deapull.io import markdown_of, markdown_table, table_record, write_csv, write_json, write_text
-from deapull.surrogate import store
+from deapull.surrogate import ensemble, store
 from deapull.surrogate.data import DatasetError, SetupData, load_setup
 from deapull.surrogate.evaluate import evaluate
 from deapull.surrogate.models import KINDS
@@ -54,7 +54,7 @@ COLUMNS = {"ramp": ("ramp",), "rhr": ("rhr",), "release": ("release",), "triangl
 EXCITATION_PROTOCOLS = tuple(p for column, protocols in COLUMNS.items() if column != "ramp" for p in protocols)
 CSV_COLUMNS = ("model", "run", "coin", "protocol", "role", "x_error_pct_travel", "mae_x_m", "max_abs_x_error_m",
                "final_x_error_m", "travel_m", "mae_Fx_N", "mae_Fy_N", "diverged", "steps", "rollout_ms",
-               "out_of_range_warnings")
+               "out_of_range_warnings", "band_coverage")
 
 
 @dataclass(frozen=True)
@@ -169,6 +169,8 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
             phis.update({run_name(c, p): phi for p in design.train_protocols})
     result = train(replace(base, kind=kind), train_runs, val_runs, phis=phis)
     store.save(result.model, folder, {**result.summary(), "design": design.__dict__}, result.history)
+    if len(result.members) >= 2:     # the restarts' ensemble, calibrated on the validation coins' runs
+        ensemble.save(result, folder, ensemble.calibrate(result.members, result.val_sets, result.phis))
     return result.model, result.summary()
 
 
@@ -187,8 +189,12 @@ def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_di
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutOfRangeWarning)
         ev = evaluate(model, data, phi=phi)
+    coverage = None
+    if (out / kind / ensemble.CALIBRATION).is_file():   # a model trained with restarts: its band
+        members, k = ensemble.load(out / kind)
+        coverage = ensemble.band(members, k, data, phi if phi is not None else model.phi_of(data)).coverage(data.x)
     row = {**{k: ev.metrics.get(k) for k in CSV_COLUMNS}, "model": kind, "run": name, "coin": coin,
-           "protocol": protocol, "role": role, "out_of_range_warnings": len(caught),
+           "protocol": protocol, "role": role, "out_of_range_warnings": len(caught), "band_coverage": coverage,
            "t": ev.t.tolist(), "x_fem": ev.x_fem.tolist(), "x_model": ev.x_model.tolist()}
     write_json(cache, row)
     return row
@@ -408,8 +414,10 @@ def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kind
         "designs": {"/".join(h): {"train": list(d.train_coins), "val": list(d.val_coins)} for h, d in designs},
         "test_protocols": ["ramp", *protocols],
         "runs": [{"pair": p, "run": n, "protocol": by[(kinds[0], n)]["protocol"], "travel_m": by[(kinds[0], n)]["travel_m"],
-                  **{k: None if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for k in kinds}}
-                 for p, n in runs]}, indent=2)
+                  **{k: None if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for k in kinds},
+                  "band_coverage": {k: by[(k, n)]["band_coverage"] for k in kinds
+                                    if by[(k, n)].get("band_coverage") is not None}}
+                 for p, n in runs], "band_level": ensemble.LEVEL}, indent=2)
     return rows
 
 
@@ -428,6 +436,10 @@ def pairs_table(rows: list[dict], kinds) -> str:
             worst = max(math.inf if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for n in group)
             shown = f"{worst:.2f} % of travel" if math.isfinite(worst) else "diverged"
             lines.append(f"* {KINDS[k].label}: largest x error on a held-out {what} {shown}")
+            cover = [by[(k, n)]["band_coverage"] for n in group if by[(k, n)].get("band_coverage") is not None]
+            if cover:
+                lines.append(f"* {KINDS[k].label}: its {100 * ensemble.LEVEL:.0f} % band covers "
+                             f"{100 * np.mean(cover):.1f} % of the held-out {what}s' points (lowest {100 * min(cover):.1f} %)")
     return (markdown_table(table, [("held-out pair", "pair", "s"), ("run", "run", "s"), ("travel mm", "travel", ".3f")]
                            + [(f"{KINDS[k].label} x error [%]", k, "s") for k in kinds])
             + "\n\n" + "\n".join(lines))

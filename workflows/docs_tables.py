@@ -170,6 +170,11 @@ def surrogate_pairs(result: dict) -> str:
             worst = max((r[k] if r[k] is not None else math.inf) for r in group)
             shown = f"largest {_f(worst, '.2f')} %" if math.isfinite(worst) else "a rollout diverged"
             rows.append(f"* {labels[k]}, held-out {what}: {shown} (goal ≤ {goal} %);")
+            cover = [r["band_coverage"][k] for r in group if k in r.get("band_coverage", {})]
+            if cover:
+                rows.append(f"* {labels[k]}, held-out {what}: its {100 * result.get('band_level', 0.9):.0f} % band covers "
+                            f"{100 * sum(cover) / len(cover):.1f} % of the points (lowest {100 * min(cover):.1f} %; "
+                            "goal ≥ 80 %);")
     rows[-1] = rows[-1].rstrip(";") + "."
     return "\n".join(rows)
 

@@ -43,3 +43,24 @@ def test_experiments_repeat_with_new_seeds_and_report_the_spread_and_the_band(sw
     x = [r["mae_x_m"] for r in rows if r["model"] == "f-coulomb"]
     mean, spread = experiments._mean_spread(rows, "f-coulomb", "mae_x_m")
     assert mean == pytest.approx(np.mean(x)) and spread == pytest.approx(np.std(x))
+
+
+def test_held_out_pairs_trained_with_restarts_carry_a_band_on_every_held_out_run(sweep_dir, tmp_path):
+    """The pair models (trained on the other coins, validated on one of them) keep their restarts'
+    ensemble calibrated on the validation coin, and every held-out run gets its coverage: in the
+    rows, pairs.json and pairs.md. The coverage is the band's own: the band built again from the
+    saved members covers the same share of the run. Broken once with the ensemble not saved: no
+    row had a coverage."""
+    from deapull.surrogate import protocol_experiments as pe
+    from deapull.surrogate.data import load_setup
+    rows = pe.run_pairs(sweep_dir, tmp_path, TrainConfig(kind="f-coulomb", epochs=3, restarts=2), kinds=("f-coulomb",))
+    assert rows and all(0 <= r["band_coverage"] <= 1 for r in rows)
+    folder = tmp_path / "pair_C5_C6" / "f-coulomb"
+    members, k = ensemble.load(folder)
+    assert json.loads((folder / ensemble.CALIBRATION).read_text())["calibrated_on"] == ["C7"]
+    run = load_setup(sweep_dir / "C5.nc")
+    again = ensemble.band(members, k, run, members[0].phi_of(run)).coverage(run.x)
+    assert next(r["band_coverage"] for r in rows if r["run"] == "C5") == pytest.approx(again)
+    pairs = json.loads((tmp_path / "pairs.json").read_text())
+    assert all(set(r["band_coverage"]) == {"f-coulomb"} for r in pairs["runs"])
+    assert "90 % band covers" in (tmp_path / "pairs.md").read_text()

@@ -248,3 +248,21 @@ def test_the_fem_control_block_names_the_commit_that_ran_each_plant():
     assert "commit" not in docs_tables.control_fem({"groups": [group(1), group(2)]})
     noted = docs_tables.control_fem({"groups": [group(1, "before fd8c86c"), group(2, "e" * 40)]}).splitlines()
     assert noted[2].endswith("| before fd8c86c |") and noted[3].endswith("| eeeeeee |")
+
+
+def test_the_pairs_table_gives_the_bands_coverage_beside_its_goal():
+    """surrogate_pairs: where pairs.json holds each held-out run's band coverage, the page says the
+    mean and the lowest beside the goal; a result without bands has no such line. Broken once with
+    the mean taken over the excitation runs too: 60.0 % read 50.0 %."""
+    run = {"pair": "C1/C2", "travel_m": 1e-3, "f-patch-lag": 0.2}
+    result = {"kinds": ["f-patch-lag"], "labels": {"f-patch-lag": "f (tip patch, lag)"}, "band_level": 0.9,
+              "designs": {"C1/C2": {"train": ["C4"], "val": ["C3"]}},
+              "runs": [{**run, "run": "C1", "protocol": "ramp", "band_coverage": {"f-patch-lag": 0.5}},
+                       {**run, "run": "C2", "protocol": "ramp", "band_coverage": {"f-patch-lag": 0.7}},
+                       {**run, "run": "C1_rhr", "protocol": "rhr", "band_coverage": {"f-patch-lag": 0.3}}]}
+    text = docs_tables.surrogate_pairs(result)
+    assert "held-out ramps: its 90 % band covers 60.0 % of the points (lowest 50.0 %; goal ≥ 80 %)" in text
+    assert "held-out excitation runs: its 90 % band covers 30.0 %" in text
+    for r in result["runs"]:
+        r.pop("band_coverage")
+    assert "band covers" not in docs_tables.surrogate_pairs(result)
