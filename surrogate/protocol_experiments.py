@@ -175,9 +175,10 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
 
 
 def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_dir: Path, excitation_dir: Path,
-                  out: Path) -> dict:
+                  out: Path, band=None) -> dict:
     """The row of one model on one run (reused from ``<out>/<kind>/eval/<run>.json`` when newer
-    than the model)."""
+    than the model); ``band``: the model's ensemble (members, k), whose coverage of the run the row
+    gives."""
     name = run_name(coin, protocol)
     cache = out / kind / "eval" / f"{name}.json"
     inputs = [out / kind / "model.pt", run_path(data_dir, excitation_dir, coin, protocol),
@@ -190,8 +191,8 @@ def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_di
         warnings.simplefilter("always", OutOfRangeWarning)
         ev = evaluate(model, data, phi=phi)
     coverage = None
-    if (out / kind / ensemble.CALIBRATION).is_file():   # a model trained with restarts: its band
-        members, k = ensemble.load(out / kind)
+    if band is not None:
+        members, k = band
         coverage = ensemble.band(members, k, data, phi if phi is not None else model.phi_of(data)).coverage(data.x)
     row = {**{k: ev.metrics.get(k) for k in CSV_COLUMNS}, "model": kind, "run": name, "coin": coin,
            "protocol": protocol, "role": role, "out_of_range_warnings": len(caught), "band_coverage": coverage,
@@ -225,8 +226,10 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, excitation
     for kind in kinds:
         cfg = replace(base, restarts=(restarts or {}).get(kind, base.restarts))   # restarts: per kind, or base's
         model, _ = train_or_load(kind, cfg, design, data_dir, excitation_dir, out)
+        # a model trained with restarts keeps its ensemble: the band of every run
+        band = ensemble.load(out / kind) if (out / kind / ensemble.CALIBRATION).is_file() else None
         for coin, protocol, role in todo:
-            rows.append(evaluate_case(model, kind, coin, protocol, role, data_dir, excitation_dir, out))
+            rows.append(evaluate_case(model, kind, coin, protocol, role, data_dir, excitation_dir, out, band))
     summary = summarise(rows, kinds)
     text = format_markdown(summary, rows, kinds, design)
     write_text(out / "protocols.md", text + "\n")

@@ -55,8 +55,7 @@ def load_study(name_or_path: str | Path) -> dict:
         raise InputError(f"{path}: missing [ladders]")
     cases = study["cases"]
     for name, overrides in cases.items():
-        if not isinstance(overrides, list) or not all(isinstance(o, str) and "=" in o for o in overrides):
-            raise InputError(f"{path}: cases.{name} = {overrides!r}: expected a list of 'section.key=value'")
+        study_file.check_overrides(path, f"cases.{name}", overrides)
     for name, ladder in study["ladders"].items():
         names = ladder.get("cases", [])
         if len(names) != 3 or not all(n in cases for n in names):

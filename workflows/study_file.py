@@ -56,7 +56,8 @@ def read(name_or_path: str | Path) -> tuple[Path, dict]:
     return path, study
 
 
-def _overrides(path: Path, where: str, value) -> tuple[str, ...]:
+def check_overrides(path: Path, where: str, value) -> tuple[str, ...]:
+    """``value`` as a tuple of ``section.key=value`` strings, or an InputError naming ``where``."""
     if not isinstance(value, list) or not all(isinstance(o, str) and "=" in o for o in value):
         raise InputError(f"{path}: {where} = {value!r}: expected a list of 'section.key=value'")
     return tuple(value)
@@ -67,7 +68,7 @@ def load(name_or_path: str | Path, keys: dict) -> tuple[dict, dict[str, Entry]]:
     each with its allowed values (a tuple) or None (any value)."""
     path, study = read(name_or_path)
     head = dict(study["study"], path=str(path))
-    head["set"] = _overrides(path, "study.set", head.get("set", []))
+    head["set"] = check_overrides(path, "study.set", head.get("set", []))
     entries = {}
     for name, table in study["cases"].items():
         table = {"set": table} if isinstance(table, list) else table
@@ -81,7 +82,7 @@ def load(name_or_path: str | Path, keys: dict) -> tuple[dict, dict[str, Entry]]:
         for k, allowed in keys.items():
             if k in table and allowed is not None and table[k] not in allowed:
                 raise InputError(f"{path}: cases.{name}.{k} = {table[k]!r}: expected one of {', '.join(map(str, allowed))}")
-        sets = _overrides(path, f"cases.{name}.set", table.get("set", []))
+        sets = check_overrides(path, f"cases.{name}.set", table.get("set", []))
         entries[name] = Entry(name, sets, table.get("description") or ", ".join(sets) or "as loaded",
                               {k: table[k] for k in keys if k in table})
     if not entries:
