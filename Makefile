@@ -30,8 +30,9 @@ demo: setup ## main job on the default scene: mesh + FEM solve of coin_pull C3 (
 test: setup ## run the test suite over $(NP) workers (pytest-xdist; serial and mpirun -n 2 checks)
 	$(PY) -m pytest -q -n $(NP)
 
-test-data: setup ## regenerate the surrogate tests' FEM fixture tests/data/sweep (mpirun -n 2, about a minute)
+test-data: setup ## regenerate the tests' FEM fixture tests/data/sweep (mpirun -n 2, about a minute) and the control tests' models tests/data/models
 	$(PY) tests/data/make_sweep.py
+	$(PY) tests/data/make_models.py
 
 solve: setup ## FEM solve of one setup: make solve SETUP=C5
 	$(DEAPULL) solve --scene coin_pull --setup $(or $(SETUP),C3) $(FIDELITY_ARG) --out $(DATA)

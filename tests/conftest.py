@@ -17,8 +17,9 @@ from pathlib import Path
 # gives other weights on an AVX-512 Intel than on an AVX2 AMD, and tests tuned on one failed on
 # the other. Pinning the code paths of torch's own kernels (ATEN_CPU_CAPABILITY), of MKL's BLAS
 # (conditional numerical reproducibility) and of oneDNN's LSTM (at most AVX2) makes a training
-# the same on every x86-64 machine with AVX2; they must be set before torch loads
-# (tests/test_reproducible.py checks them).
+# the same on those two machines, not on every CPU (an AVX-512 AMD trains other weights again), so
+# the tests written for particular weights load committed models (the ``committed`` fixture). The
+# pins must be set before torch loads (tests/test_reproducible.py checks them).
 if "torch" in sys.modules:
     raise RuntimeError("tests/conftest.py must pin torch's code paths before torch is imported")
 os.environ.setdefault("ATEN_CPU_CAPABILITY", "default")
@@ -91,6 +92,8 @@ def tiny_scene():
 #: the committed test sweep: the shipped coin_pull scene on an 8 × 1 hexahedral mesh, all
 #: eight setups (722 points each, two stages, 0.47–0.69 mm of travel)
 SWEEP = DATA / "sweep"
+#: the control tests' models, trained once on SWEEP and committed (tests/data/make_models.py)
+MODELS = DATA / "models"
 #: small but real trainings: each kind once per session, shared by the tests
 QUICK = {"f": dict(epochs=80), "f-coulomb": dict(epochs=80), "f-memory": dict(epochs=80), "f-patch": dict(epochs=80),
          "f-patch-lag": dict(epochs=80), "nn": dict(epochs=40),
@@ -130,5 +133,24 @@ def trained(sweep):
     def get(kind: str):
         if kind not in cache:
             cache[kind] = train(TrainConfig(kind=kind, **QUICK[kind]), [sweep["C1"]], sweep["C2"])
+        return cache[kind]
+    return get
+
+
+@pytest.fixture(scope="session")
+def committed():
+    """``committed(kind)``: the committed model of ``kind`` (f-coulomb, f-memory, f-patch), cached.
+
+    The ``trained`` fixture's training, run once and committed in tests/data/models
+    (tests/data/make_models.py): the control tests are written for these weights, which a
+    training in the session reproduces only on CPUs like the one that made them."""
+    from deapull.surrogate import store
+    cache = {}
+
+    def get(kind: str):
+        if kind not in cache:
+            if not (MODELS / kind).is_dir():
+                pytest.fail(f"{MODELS / kind}: no committed model of {kind!r}; run `make test-data`")
+            cache[kind] = store.load(MODELS / kind)[0]
         return cache[kind]
     return get

@@ -17,7 +17,7 @@ BENCH = Path(__file__).resolve().parents[2] / "bench" / "bench_inference.py"
 pytestmark = pytest.mark.skipif(native.memory_library() is None, reason="no C compiler for the native inference")
 
 
-def test_the_bench_runs_both_engines_on_one_record(trained, monkeypatch):
+def test_the_bench_runs_both_engines_on_one_record(committed, monkeypatch):
     spec = importlib.util.spec_from_file_location("bench_inference", BENCH)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
@@ -29,7 +29,7 @@ def test_the_bench_runs_both_engines_on_one_record(trained, monkeypatch):
         engines.append((config.engine, inf.native))
         return inf
     monkeypatch.setattr(bench, "OnlineInference", spy)
-    r = bench.bench(trained("f-memory").model, rows=120, updates=2, noise=1e-4, seed=0)
+    r = bench.bench(committed("f-memory"), rows=120, updates=2, noise=1e-4, seed=0)
     assert [e for e, _ in engines] == ["torch", "native"]
     assert engines[0][1] is None and engines[1][1] is native.memory_predict
     assert r["rows"] == 120 and all(r[k] > 0 for k in ("torch_update_ms", "native_update_ms"))

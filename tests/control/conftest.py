@@ -4,10 +4,14 @@ plants with answers known in closed form. Nothing here needs dolfinx; the FEM-pl
 import it inside themselves and are marked ``fem``."""
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from deapull.surrogate.phi import Phi
+from tests.conftest import MODELS
 
 #: a target the fixture's surrogate reaches (its coin travels 0.65 mm at 400 V)
 FIXTURE_TARGET_M = -0.4e-3
@@ -57,17 +61,15 @@ class ParkedPlant:
 
 
 @pytest.fixture(scope="session")
-def fs1_model(trained):
-    """f-coulomb trained on the fixture's C1 (validated on C2), as the plant f_s,1."""
-    return trained("f-coulomb").model
+def fs1_model(committed):
+    """f-coulomb trained on the fixture's C1 (validated on C2; committed), as the plant f_s,1."""
+    return committed("f-coulomb")
 
 
 @pytest.fixture(scope="session")
-def fs1_dir(trained, tmp_path_factory):
-    """That model saved as `deapull train` saves it (a --plant-model folder)."""
-    from deapull.surrogate import store
-    result = trained("f-coulomb")
-    return store.save(result.model, tmp_path_factory.mktemp("models") / "fs1", result.summary(), result.history)
+def fs1_dir(tmp_path_factory):
+    """That model's folder as `deapull train` saved it (a --plant-model folder), copied."""
+    return Path(shutil.copytree(MODELS / "f-coulomb", tmp_path_factory.mktemp("models") / "fs1"))
 
 
 @pytest.fixture

@@ -11,9 +11,9 @@ from deapull.control.filters import (BiasKalman, ConstantVelocityKalman, ModelKa
 
 
 @pytest.fixture(scope="module")
-def coulomb_and_plant(trained, sweep):
+def coulomb_and_plant(committed, sweep):
     from deapull.control.plants import SurrogatePlant
-    model = trained("f-coulomb").model
+    model = committed("f-coulomb")
     return model, SurrogatePlant(model, model.phi_of(sweep["C1"]), name="surrogate:C1")
 
 

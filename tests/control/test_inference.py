@@ -35,8 +35,8 @@ def excitation(steps: int) -> list:
 
 
 @pytest.fixture(scope="module")
-def coulomb(trained):
-    model = trained("f-coulomb").model
+def coulomb(committed):
+    model = committed("f-coulomb")
     return model
 
 
@@ -266,8 +266,8 @@ def test_maximum_likelihood_under_noise_stays_inside_a_physical_box(coulomb, obs
 
 
 @pytest.fixture(scope="module")
-def memory_model(trained):
-    return trained("f-memory").model
+def memory_model(committed):
+    return committed("f-memory")
 
 
 def test_an_f_memory_f_a_carries_the_tips_memory_and_recovers_the_known_phi(memory_model):
@@ -277,8 +277,8 @@ def test_an_f_memory_f_a_carries_the_tips_memory_and_recovers_the_known_phi(memo
     right; Levenberg–Marquardt then recovers every field, which the Cramér–Rao bound calls
     identifiable here. Broken once: the memory left at the value tracked when each row was
     added (no re-derivation along the buffer): the estimate stopped 0.5–6 % off ("assert 0.0572 <
-    0.001"). Measured from the prior's median on an AMD EPYC: at most 0.09 % off after 200 more
-    updates."""
+    0.001"). Measured from the prior's median with the committed model: every field within 1e-12
+    after 200 more updates."""
     model = memory_model.double()
     memories, observed = [], [(0.0, 0.0)]
     with torch.no_grad():
@@ -290,8 +290,8 @@ def test_an_f_memory_f_a_carries_the_tips_memory_and_recovers_the_known_phi(memo
     memory_model.float()
     assert min(x for x, _ in observed) < -1e-4
     # from the coin family's prior median (a controller that knows the family starts there): from the
-    # paper's 0.001 g the fixture trained on some CPUs falls into a low-friction basin (0.6 um RMS off
-    # the record, μ 80 % low), and which one it gets rests on the training run
+    # paper's 0.001 g an f-memory trained like this one can fall into a low-friction basin (measured on
+    # one such training: 0.6 um RMS off the record, μ 80 % low)
     start = {f: median for f, (median, _) in COIN_PRIOR.items()}
     inf = run(memory_model, observed, InferenceConfig(optimizer="lm", initial=start), extra_updates=200)
     errors = relative_errors(inf)

@@ -245,8 +245,8 @@ TRUTH_PHI = (1.36e-3, 0.2, 0.5)
 
 
 @pytest.fixture(scope="module")
-def coulomb(trained):
-    return trained("f-coulomb").model
+def coulomb(committed):
+    return committed("f-coulomb")
 
 
 def test_coin_dynamics_is_the_models_step_in_scaled_units(coulomb):
@@ -888,7 +888,7 @@ def test_a_repeated_sweep_starts_from_the_gain_its_hold_measured_and_stops_neare
 
 
 @pytest.mark.parametrize("kind", ["f-coulomb", "f-memory"])
-def test_the_filter_propagates_f_as_own_velocity_not_the_gain_corrected_one(trained, sweep, kind):
+def test_the_filter_propagates_f_as_own_velocity_not_the_gain_corrected_one(committed, sweep, kind):
     """The bias filter predicts each step as (1 + g) × f_a's step from the previous estimate; the
     velocity that step starts from is f_a's own (the plant's is (1 + g) times it, but f_a's
     inertia must not see it, or every step multiplies the model's velocity by 1 + g once more).
@@ -901,7 +901,7 @@ def test_the_filter_propagates_f_as_own_velocity_not_the_gain_corrected_one(trai
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
-    model = trained(kind).model
+    model = committed(kind)
     plant = SurrogatePlant(model, model.phi_of(sweep["C1"]), name="surrogate:C1")
     env = CoinPushEnv(plant, target_m=-0.6e-3, terminate_on_success=False, noise_std_m=1e-4, dv_max_V=1.0)
     _, info = env.reset(seed=0)

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(not native.available(), reason="no C compiler fo
 
 
 @pytest.fixture(scope="module", params=["f-coulomb", "f-patch"])
-def pair(trained, request):
+def pair(committed, request):
     """The torch and the compiled step of a point-contact f_a and of one with the patch's spread
     (f-patch: ε over a step moves with w and β(V'), so its Jacobians carry two more terms).
 
@@ -22,7 +22,7 @@ def pair(trained, request):
     native_mpc.c (``dspread = 0``): the Jacobians' comparison failed."""
     from deapull.control.dynamics import CoinDynamics
     from deapull.surrogate.phi import Phi
-    model = trained(request.param).model
+    model = committed(request.param)
     if request.param == "f-patch":
         # one coin does not identify the spread (the fixture's model keeps β ≤ 0.02); widen it
         # to the ~0.3–1 that f_a learns on C3..C7, so that the spread's terms carry weight
@@ -98,7 +98,7 @@ def test_native_solver_gives_the_torch_solvers_plans(pair, final):
 
 
 @pytest.mark.parametrize("kind", ["f-coulomb", "f-memory", "f-patch"])
-def test_native_inference_residuals_jacobian_and_steps_are_torchs(trained, sweep, kind):
+def test_native_inference_residuals_jacobian_and_steps_are_torchs(committed, sweep, kind):
     """The Levenberg–Marquardt inference in C (residuals of eq. 9 plus the stick hinge and
     their Jacobian in log φ) against autograd through the torch model, and the estimates
     after 20 updates of each. For f-memory also the tip's memory the buffer carries, as each
@@ -110,7 +110,7 @@ def test_native_inference_residuals_jacobian_and_steps_are_torchs(trained, sweep
     ``P = m.X - m.c * T``): the carried memory's comparison failed."""
     from deapull.control.inference import InferenceConfig, OnlineInference
     from deapull.control.plants import SurrogatePlant
-    model = trained(kind).model
+    model = committed(kind)
     plant = SurrogatePlant(model, model.phi_of(sweep["C1"]))
     runs = {e: OnlineInference(model, InferenceConfig(optimizer="lm", engine=e), 1e-3) for e in ("torch", "native")}
     assert runs["torch"].native is None and runs["native"].native is not None

@@ -18,11 +18,14 @@ T in N).
 """
 from __future__ import annotations
 
+import shutil
+
 import pytest
 import torch
 
 from deapull.control import mpc, native
 from deapull.control.adapters import adapter
+from tests.conftest import MODELS
 from tests.control.jacobian_check import assert_jacobians_match_central_differences, assert_plans_match_torch
 
 F64 = torch.float64
@@ -32,10 +35,10 @@ pytestmark = pytest.mark.skipif(native.memory_library() is None, reason="no C co
 
 
 @pytest.fixture(scope="module")
-def pair(trained):
+def pair(committed):
     from deapull.control.dynamics import CoinDynamics
     from deapull.surrogate.phi import Phi
-    model = trained("f-memory").model
+    model = committed("f-memory")
     phi = Phi(*TRUTH_PHI).to(dtype=F64)
     return (CoinDynamics(model, phi, DT, DV_MAX, V_MAX), native.native_dynamics(model, phi, DT, DV_MAX, V_MAX))
 
@@ -151,13 +154,13 @@ def _memory_episode(model, engine: str, steps: int = 150):
 
 
 @pytest.mark.parametrize("engine", ["native", "torch"])
-def test_the_policy_tracks_the_tips_memory_and_reaches_the_target(trained, engine):
+def test_the_policy_tracks_the_tips_memory_and_reaches_the_target(committed, engine):
     """The plant shows only x: the policy tracks P and T by its own model step. On a plant that
     is f_a, that is the plant's own memory at every step, through the stick, the slip and the
     hold, to the float32 precision of the observed x (the velocity the policy steps with is
     its finite difference: T agrees to ~2e-7 relative, P to ~1e-12 m); and the MPC brings the
     coin to the target."""
-    model = trained("f-memory").model
+    model = committed("f-memory")
     tracked, memory, actions, info, env = _memory_episode(model, engine)
     assert float(memory[:, 1].abs().max()) > 1e-3                          # the tip carried friction (N)
     torch.testing.assert_close(tracked, memory, rtol=1e-5, atol=1e-11)
@@ -165,7 +168,7 @@ def test_the_policy_tracks_the_tips_memory_and_reaches_the_target(trained, engin
     assert actions[0] == pytest.approx(DV_MAX) and min(actions[-10:]) < DV_MAX          # ramp, then the MPC
 
 
-def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained, monkeypatch):
+def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(committed, monkeypatch):
     """``UNSTALL``: on a memoryless plant, in a push to −0.30 mm, back to −0.25 mm and on to
     −0.30 mm, the f-memory MPC's solved plans can hold V with the coin standing (its model's
     tip must reload its friction first, late in the horizon or beyond it); the policy creeps
@@ -182,7 +185,7 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     from deapull.surrogate.phi import Phi
     from deapull.workflows.control import run_episode
     phi = Phi(*TRUTH_PHI)
-    plant = SurrogatePlant(trained("f-coulomb").model, phi)
+    plant = SurrogatePlant(committed("f-coulomb"), phi)
     setpoints = (-0.3e-3, -0.25e-3, -0.3e-3)
     monkeypatch.setattr(mpc_policy, "RECENTRE_STDS", 0.0)
     steps = {}
@@ -190,7 +193,7 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
         monkeypatch.setattr(mpc_policy, "UNSTALL", unstall)
         for horizon in (6, 8, 20):
             env = CoinPushEnv(plant, target_m=setpoints[0], terminate_on_success=False, max_steps=4000)
-            policy = MPCPolicy(trained("f-memory").model, MPCConfig(inference=None, horizon=horizon), phi=phi)
+            policy = MPCPolicy(committed("f-memory"), MPCConfig(inference=None, horizon=horizon), phi=phi)
             row = run_episode(env, policy, seed=0, step_limit=1200, hold_steps=50, setpoints_m=setpoints).row
             steps[unstall, horizon] = [None if s == "None" else int(s) for s in row["iterations_per_setpoint"].split(";")]
     # reached, not settled: the hold at the pull-back's −0.25 mm is the f-memory model's release
@@ -200,7 +203,7 @@ def test_a_plan_that_leaves_the_coin_standing_short_of_the_target_creeps(trained
     assert any(s is None or s > 40 for h in (6, 8, 20) for s in steps[False, h]), steps
 
 
-def test_the_cli_plans_and_infers_with_an_f_memory_model(trained, sweep_dir, fs1_dir, tmp_path):
+def test_the_cli_plans_and_infers_with_an_f_memory_model(committed, sweep_dir, fs1_dir, tmp_path):
     """``deapull control --mpc-model <f-memory>``: by default the MPC infers φ online with the
     f-memory f_a (its buffer carries the tip's memory) and the CSV records the estimate, inside
     the physical box; with ``mpc_phi = "prior"`` and ``--phi-prior coins`` the compiled f-memory MPC plans
@@ -209,10 +212,8 @@ def test_the_cli_plans_and_infers_with_an_f_memory_model(trained, sweep_dir, fs1
     import csv
 
     from deapull.control.inference import BOUNDS
-    from deapull.surrogate import store
     from deapull.workflows.cli import main
-    result = trained("f-memory")
-    folder = store.save(result.model, tmp_path / "fmem", result.summary(), result.history)
+    folder = shutil.copytree(MODELS / "f-memory", tmp_path / "fmem")
     argv = ["control", "--policy", "mpc", "--plant", "surrogate:C1", "--data", str(sweep_dir), "--plant-model",
             str(fs1_dir), "--mpc-model", str(folder), "--no-progress",
             "--episodes", "1", "--noise", "0", "--target-mm", "-0.2", "--max-steps", "300", "--hold", "20"]
