@@ -183,11 +183,11 @@ SLOPE_SPAN_V = 10.0
 #: aimed by such landings misses the window; the sweep learns instead,
 #: tests/control/test_mpc.py::test_a_repeated_sweep_starts_from_the_gain_its_hold_measured_and_stops_nearer)
 LEARN_STD = 2.0
-#: what ``learned`` holds for a task whose landing line meets the target only beyond the voltage limit,
-#: or whose scheduled episode ended at the limit short of it: a schedule (slower than the plan near its
-#: end) cannot reach it there, so every later episode plans
-#: (surrogate:C2 on the data fidelity: the plan's push coasts to the target at 397.5 V, the schedule
-#: stops 36–58 µm short at 400 V)
+#: what ``learned`` holds for a task whose landing line stays outside the window even at the voltage
+#: limit, or whose scheduled episode ended at the limit short of it: a schedule cannot reach it there,
+#: so every later episode plans (surrogate:C2 on the data fidelity, trained on an AMD EPYC: the plan's
+#: push coasts to the target at 397.5 V, the schedule stops 36–58 µm short at 400 V); a line that
+#: meets the window at the limit is scheduled to the limit
 BEYOND_REACH = {"beyond_reach": True}
 #: with a prior and the one-step loss, a field is planned at its estimate once its Cramér–Rao bound
 #: on the relative error is below this (the paper's 10 % inference error), else at the prior's median
@@ -425,7 +425,8 @@ class MPCPolicy(Policy):
         else:
             return
         V_f, x_f, x_var = self._landing_fit(entry)
-        if V_f >= self.v_max_V:             # the line meets the target at or beyond the voltage limit
+        if V_f >= self.v_max_V and abs(x_f - self.target_m) > self.tolerance_m:
+            # at the voltage limit the line stays outside the window: beyond the schedule's reach
             self.learned[key] = BEYOND_REACH
             return
         entry.update(V_f=V_f, x_f=x_f, x_var=x_var, gain=self.bias.gain, gain_var=float(self.bias.P[1, 1]))
