@@ -185,9 +185,8 @@ SLOPE_SPAN_V = 10.0
 LEARN_STD = 2.0
 #: what ``learned`` holds for a task whose landing line stays outside the window even at the voltage
 #: limit, or whose scheduled episode ended at the limit short of it: a schedule cannot reach it there,
-#: so every later episode plans (surrogate:C2 on the data fidelity, trained on an AMD EPYC: the plan's
-#: push coasts to the target at 397.5 V, the schedule stops 36–58 µm short at 400 V); a line that
-#: meets the window at the limit is scheduled to the limit
+#: so every later episode plans; a line that meets the window at the limit is scheduled to the limit
+#: (tests/control/test_mpc.py::test_a_target_the_landing_line_meets_beyond_the_voltage_limit_is_planned_not_scheduled)
 BEYOND_REACH = {"beyond_reach": True}
 #: with a prior and the one-step loss, a field is planned at its estimate once its Cramér–Rao bound
 #: on the relative error is below this (the paper's 10 % inference error), else at the prior's median
