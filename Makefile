@@ -57,6 +57,9 @@ stability: setup ## stiff and extreme cases at FIDELITY; resumes
 	$(MPIRUN) $(DEAPULL) stability $(FIDELITY_ARG) --out $(OUT)/stability
 
 MODELS ?= $(OUT)/models
+#: the surrogate preset's plants f_s,1, f_s,2 and its f_a, committed (their weights depend on the CPU
+#: that trains them); make control retrains one whose folder is missing
+PLANTS := control/models
 PRESET ?= surrogate
 control: setup ## closed loop at a preset of control/presets: PRESET=surrogate (MPC, SAC, PD, heuristic on f_s,1 and f_s,2, Fig. 6; needs $(DATA)) or PRESET=fem (the MPC on fem:C1..C8 and the push-push-pull-back task on fem:C3)
 ifeq ($(PRESET),fem)
@@ -67,16 +70,16 @@ ifeq ($(PRESET),fem)
 	cp $(OUT)/control_fem/multi/summary.json bench/reference/control_fem_multi.json
 else
 	$(FA_PUSH)
-	@for s in 1 2; do test -f $(MODELS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
-		--val C$$((3 - s)) --model f-coulomb --epochs 300 --runs $(DATA)/push --out $(MODELS)/fs$$s || exit 1; done
+	@for s in 1 2; do test -f $(PLANTS)/fs$$s/model.json || $(DEAPULL) train --data $(DATA) --train C$$s \
+		--val C$$((3 - s)) --model f-coulomb --epochs 300 --runs $(DATA)/push --out $(PLANTS)/fs$$s || exit 1; done
 	$(DEAPULL) control --preset $(PRESET) --data $(DATA) --out $(OUT)/control
 	cp $(OUT)/control/summary.json bench/reference/control_surrogate.json
 endif
 
 FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --episodes 1
-FA_PUSH := @test -f $(MODELS)/fa_push/model.json || ($(MAKE) --no-print-directory sweep PROTOCOLS=push && \
+FA_PUSH := @test -f $(PLANTS)/fa_push/model.json || ($(MAKE) --no-print-directory sweep PROTOCOLS=push && \
 	$(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 --model f-coulomb --epochs 300 \
-	--runs $(DATA)/push --out $(MODELS)/fa_push)
+	--runs $(DATA)/push --out $(PLANTS)/fa_push)
 FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
 	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
 MPC_PYTORCH := $(OUT)/mpc_pytorch
@@ -105,7 +108,7 @@ else ifeq ($(BENCH),inference)
 	$(FA_MEM)
 	$(PY) bench/bench_inference.py --model $(MODELS)/fa_mem
 	$(FA_PUSH)
-	$(PY) bench/bench_inference.py --model $(MODELS)/fa_push --calibration 24 --noise 1e-6 \
+	$(PY) bench/bench_inference.py --model $(PLANTS)/fa_push --calibration 24 --noise 1e-6 \
 		--out bench/reference/inference_calibration.json
 else ifeq ($(BENCH),blas)
 	$(PY) bench/bench_blas.py --out $(OUT)/bench_blas $(if $(BLAS_SOLVE),--solve)
@@ -116,7 +119,7 @@ endif
 experiments: setup ## the paper's six sets (f-coulomb, NN, LSTM; 3 repeats of seeds) and the held-out friction pairs (needs $(DATA)); writes bench/reference/surrogate_*.json
 	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments --models f-coulomb,nn,lstm --publish bench/reference
 	$(DEAPULL) experiments-protocols --held-out-pairs --data $(DATA) --out $(OUT)/pairs --models f-patch-lag,f-coulomb,nn \
-		--restarts f-patch-lag=3 \
+		--restarts f-patch-lag=5,f-coulomb=5 \
 		--publish bench/reference
 
 experiments-protocols: setup ## train on ramps + excitation, test held-out protocols and coins (needs $(DATA), $(DATA)/excitation; resumes)

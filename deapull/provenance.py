@@ -1,6 +1,7 @@
 """Where a number came from: the git commit and the versions of the packages that made it."""
 from __future__ import annotations
 
+import hashlib
 import importlib
 import platform
 import subprocess
@@ -19,6 +20,15 @@ def package_versions(packages=PACKAGES) -> dict[str, str]:
         except ImportError:
             continue
     return out
+
+
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def git_commit() -> str:

@@ -15,14 +15,13 @@ Every check names the file and the variable, so a bad sweep fails before any tra
 from __future__ import annotations
 
 import functools
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from deapull import dataset
+from deapull import dataset, provenance
 from deapull import scene as scenes
 from deapull.dataset import DatasetError   # re-exported: the surrogate's readers raise it
 from deapull.errors import InputError
@@ -202,7 +201,7 @@ def load_setup(path: str | Path) -> SetupData:
     return SetupData(name=run.path.stem, path=run.path, **columns, mass_kg=run.number("coin_mass_kg"),
                      mu_b=run.number("coin_mu_b"), gravity_m_s2=run.number("gravity_m_s2"),
                      wall_time_s=float(run.attrs.get("wall_time_total_s", float("nan"))), **optional,
-                     sha256=hashlib.sha256(run.path.read_bytes()).hexdigest(),
+                     sha256=provenance.file_sha256(run.path),
                      scene_toml=str(run.attrs.get("scene_toml", "")), setup=str(run.attrs.get("setup", "")))
 
 

@@ -419,7 +419,8 @@ def run(config: ControlConfig) -> list[Episode]:
     packages = VERSIONED + (("dolfinx", "petsc4py") if any(p.kind == "fem" for p in config.plants) else ())
     settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(config).items()}
     commit = provenance.git_commit()
-    write_json(config.out / "run.json", {"config": settings, "git_commit": commit,
+    inputs = inputs_of(config)
+    write_json(config.out / "run.json", {"config": settings, "git_commit": commit, "inputs": inputs,
                                          **provenance.package_versions(packages)}, indent=2)
     targets = plant_targets(config)
     total = len(config.plants) * len(config.policies) * len(config.noises) * config.episodes
@@ -448,8 +449,9 @@ def run(config: ControlConfig) -> list[Episode]:
                         episodes.append(ep)
                         bar.update(1)
                         if len(episodes) < total:       # so far, so that a long FEM run that stops keeps it
-                            write_outputs(config.out, episodes, task, left_out, figures=False, commit=commit)
-    write_outputs(config.out, episodes, task, left_out, commit=commit)
+                            write_outputs(config.out, episodes, task, left_out, figures=False, commit=commit,
+                                              inputs=inputs)
+    write_outputs(config.out, episodes, task, left_out, commit=commit, inputs=inputs)
     return episodes
 
 
@@ -493,17 +495,28 @@ def fem_run_name(setup: str, tag: str, policy: str, noise: float, episode: int) 
     return f"{setup}{tag}_{re.sub(r'[^A-Za-z0-9]', '-', policy)}_n{noise:g}_e{episode}"
 
 
+def inputs_of(config: ControlConfig) -> dict:
+    """The SHA-256 of what a run reads: each model file (plants and f_a) and each plant's dataset."""
+    folders = [config.folder(config.plant_model, s.setup) for s in config.plants if _needs_surrogate(config, s)]
+    if any(name.startswith("mpc") for name in config.policies):
+        folders.append(Path(config.mpc_model))
+    data = {s.setup: config.data / f"{s.setup}.nc" for s in config.plants}
+    return {"models": {str(f): provenance.file_sha256(Path(f) / store.STATE) for f in dict.fromkeys(folders)},
+            "datasets": {k: provenance.file_sha256(p) for k, p in data.items() if p.is_file()}}
+
+
 def write_outputs(out: Path, episodes: list[Episode], task: Task, left_out: list[dict] = (),
-                  figures: bool = True, commit: str = "unknown") -> None:
+                  figures: bool = True, commit: str = "unknown", inputs: dict | None = None) -> None:
     """The CSV, table, traces and (``figures``) figures of the episodes; ``left_out``: rows of the
     plants that could not reach the task (in the CSV and the table, no traces); ``commit``: the git
-    commit that ran them, in ``summary.json``. Written after every episode without the figures, each
+    commit that ran them, and ``inputs`` (:func:`inputs_of`), in ``summary.json``. Written after every episode without the figures, each
     file whole (temp file, then rename)."""
     rows = [e.row for e in episodes] + list(left_out)
     columns = list(COLUMNS) + [f"{w}_{f}" for w in ("true", "inferred", "crlb") for f in PHI_FIELDS]
     write_csv(out / "control.csv", rows, columns)
     write_text(out / "table.md", summary_table(rows, task.tolerance_m) + "\n")
-    write_json(out / "summary.json", {"schema": 2, "git_commit": commit, "tolerance_m": task.tolerance_m,
+    write_json(out / "summary.json", {"schema": 2, "git_commit": commit, "inputs": inputs or {},
+                                      "tolerance_m": task.tolerance_m,
                                       "target_m": task.target_m,
                                       "groups": control_outputs.summary_counts(rows),
                                       "table": control_outputs.summary_record(rows, task.tolerance_m)}, indent=2)

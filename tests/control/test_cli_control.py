@@ -96,7 +96,7 @@ def test_filtered_policies_run_under_their_own_names(base, tmp_path, capsys, fs1
     assert [r["policy"] for r in rows] == ["pd+kf", "mpc+kf"] and all(r["steps_run"] == "3" for r in rows)
 
 
-def test_control_run_writes_csv_table_and_figures(base, tmp_path, capsys):
+def test_control_run_writes_csv_table_and_figures(base, tmp_path, capsys, fs1_dir, sweep_dir):
     out = tmp_path / "out"
     argv = [*base, "--policy", "pd,heur", "--episodes", "2", "--noise", "0,1e-5", "--target-mm", "-0.4",
             "--max-steps", "700", "--hold", "20"]
@@ -117,9 +117,12 @@ def test_control_run_writes_csv_table_and_figures(base, tmp_path, capsys):
         for noise in ("0", "1e-05"):
             assert (out / f"{stem}_surrogate_C1_noise{noise}.png").stat().st_size > 10_000
     assert (out / "traces.npz").is_file() and (out / "run.json").is_file()
-    # the results file names the commit that ran it, as run.json does
+    # the results file names the commit that ran it, as run.json does, and the files it read
     from deapull import provenance
-    assert json.loads((out / "summary.json").read_text())["git_commit"] == provenance.git_commit()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["git_commit"] == provenance.git_commit()
+    assert summary["inputs"] == {"models": {str(fs1_dir): provenance.file_sha256(fs1_dir / "model.pt")},
+                                 "datasets": {"C1": provenance.file_sha256(sweep_dir / "C1.nc")}}
 
 
 def test_an_interrupted_run_keeps_the_episodes_it_finished(base, tmp_path, monkeypatch):
@@ -336,7 +339,7 @@ def test_a_preset_sets_the_options_that_flags_and_set_control_override(tmp_path)
     mpc = mpc_config(args.mpc_table)
     assert args.episodes == 3 and mpc.standoff_stds == 1.5 and mpc.reach_gate is True
     assert mpc.approach_m == 1e-4 and mpc.estimator.innovation_window == 7      # the preset's, and the --set's
-    assert args.mpc_model == "out/models/fa_push" and args.overrides == ["mesh.n_length=4"]
+    assert args.mpc_model == "control/models/fa_push" and args.overrides == ["mesh.n_length=4"]
     # a flag given at its default value still wins over the preset
     assert _parsed("--preset", "surrogate", "--out", str(tmp_path), "--episodes", "10", "--noise", "0").noise == "0"
     assert mpc_config(_parsed("--preset", "surrogate", "--out", str(tmp_path)).mpc_table).standoff_stds == 2.0
