@@ -56,9 +56,8 @@ fidelity: setup ## error against run time ladder on coin_pull C3 at FIDELITY (ev
 stability: setup ## stiff and extreme cases at FIDELITY; resumes
 	$(MPIRUN) $(DEAPULL) stability $(FIDELITY_ARG) --out $(OUT)/stability
 
-MODELS ?= $(OUT)/models
-#: the surrogate preset's plants f_s,1, f_s,2 and its f_a, committed (their weights depend on the CPU
-#: that trains them); make control retrains one whose folder is missing
+#: the presets' models (f_s,1, f_s,2 and f_a of surrogate, f_a of fem), committed: their weights depend
+#: on the CPU that trains them; make control retrains one whose folder is missing
 PLANTS := control/models
 PRESET ?= surrogate
 control: setup ## closed loop at a preset of control/presets: PRESET=surrogate (MPC, SAC, PD, heuristic on f_s,1 and f_s,2, Fig. 6; needs $(DATA)) or PRESET=fem (the MPC on fem:C1..C8 and the push-push-pull-back task on fem:C3)
@@ -80,8 +79,8 @@ FEM_MULTI := --plant fem:C3 --setpoints-mm=-0.5,-1.0,-0.7 --episodes 1
 FA_PUSH := @test -f $(PLANTS)/fa_push/model.json || ($(MAKE) --no-print-directory sweep PROTOCOLS=push && \
 	$(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 --model f-coulomb --epochs 300 \
 	--runs $(DATA)/push --out $(PLANTS)/fa_push)
-FA_MEM := @test -f $(MODELS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
-	--model f-memory --epochs 300 --restarts 1 --out $(MODELS)/fa_mem
+FA_MEM := @test -f $(PLANTS)/fa_mem/model.json || $(DEAPULL) train --data $(DATA) --train C3,C4,C5,C6,C7 --val C8 \
+	--model f-memory --epochs 300 --restarts 1 --out $(PLANTS)/fa_mem
 MPC_PYTORCH := $(OUT)/mpc_pytorch
 #: bench control's target (mm from the start), inside the reach of the f_a it trains; the paper's 1 mm
 #: with a model that reaches it (BENCH_TARGET_MM=1.0)
@@ -106,7 +105,7 @@ else ifeq ($(BENCH),control-fem)
 		--data $(DATA) --out $(OUT)/bench_control_fem
 else ifeq ($(BENCH),inference)
 	$(FA_MEM)
-	$(PY) bench/bench_inference.py --model $(MODELS)/fa_mem
+	$(PY) bench/bench_inference.py --model $(PLANTS)/fa_mem
 	$(FA_PUSH)
 	$(PY) bench/bench_inference.py --model $(PLANTS)/fa_push --calibration 24 --noise 1e-6 \
 		--out bench/reference/inference_calibration.json

@@ -12,7 +12,7 @@ length in ``--rows`` both engines observe the same record; then each takes ``--u
 the Python scan (what the f-memory f_a ran on before); ``engine="native"`` is
 ``native_mpc_memory.c`` (``deapull_memory_predict``, ``deapull_memory_scan``).
 
-    python bench/bench_inference.py --model out/models/fa_mem        # make bench BENCH=inference
+    python bench/bench_inference.py --model control/models/fa_mem        # make bench BENCH=inference
 
 ``--calibration N`` measures instead what the inference can tell (goal G6): over N seeds of the
 noise, each seed's plant f_a with a coin of ``--truths`` (the design's C1..C8 in turn,
@@ -27,7 +27,7 @@ The design's coins sit at ±1 std of the family prior, so where the data leave a
 (m_c) its interval's edge falls on them and their coverage is a coin toss; drawn from the prior,
 the truths test the interval as a Bayesian one.
 
-    python bench/bench_inference.py --model out/models/fa_push --calibration 20 --noise 1e-6
+    python bench/bench_inference.py --model control/models/fa_push --calibration 20 --noise 1e-6
 """
 from __future__ import annotations
 

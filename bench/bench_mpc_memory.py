@@ -8,7 +8,7 @@ ramp; horizon 20, 20 iterations), from the state the compiled model reaches afte
 the 0.4 V per step ramp (the coin sliding at ~352 V), aiming 0.02 mm further; φ of C3
 (m_c 1.36 g, μ_b 0.2, μ_t 0.55), Δt 1 ms, ΔV_max 0.4 V.
 
-    python bench/bench_mpc_memory.py --fmem out/models/fa_mem --fcoulomb out/models/fa
+    python bench/bench_mpc_memory.py --fmem control/models/fa_mem --fcoulomb out/models/fa
 """
 from __future__ import annotations
 
