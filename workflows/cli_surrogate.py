@@ -308,8 +308,8 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output folder (resumes: trained models and evaluations are reused)")
     p.add_argument("--models", default="", help="comma-separated kinds (default f-memory,f-coulomb,f,nn,lstm)")
     p.add_argument("--held-out-pairs", action="store_true",
-                   help="leave one friction pair out at a time (C1/C2 .. C7/C8), train on the other coins' ramps, "
-                   "test on the pair's ramps and its excitation runs in --excitation (--models, default f-coulomb; the "
+                   help="leave one friction pair out at a time (C1/C2 .. C7/C8), train on two other pairs' ramps, validate "
+                   "on the third's first coin, test on the pair's ramps and its excitation runs in --excitation (--models, default f-coulomb; the "
                    "coin and protocol flags are not used)")
     p.add_argument("--publish", default="", help="with --held-out-pairs: also copy pairs.json to "
                    "DIR/surrogate_pairs.json (bench/reference)")

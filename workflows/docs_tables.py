@@ -175,6 +175,9 @@ def surrogate_pairs(result: dict) -> str:
                 rows.append(f"* {labels[k]}, held-out {what}: its {100 * result.get('band_level', 0.9):.0f} % band covers "
                             f"{100 * sum(cover) / len(cover):.1f} % of the points (lowest {100 * min(cover):.1f} %; "
                             "goal ≥ 80 %);")
+    if "data" in result:
+        rows.append(f"* data: fidelity {', '.join(result['data']['fidelity'])} "
+                    f"({', '.join(result['data']['fidelity_id'])});")
     rows[-1] = rows[-1].rstrip(";") + "."
     return "\n".join(rows)
 

@@ -63,4 +63,5 @@ def test_held_out_pairs_trained_with_restarts_carry_a_band_on_every_held_out_run
     assert next(r["band_coverage"] for r in rows if r["run"] == "C5") == pytest.approx(again)
     pairs = json.loads((tmp_path / "pairs.json").read_text())
     assert all(set(r["band_coverage"]) == {"f-coulomb"} for r in pairs["runs"])
+    assert pairs["data"]["fidelity_id"] == [run.fidelity_id]          # the data it was made on
     assert "90 % band covers" in (tmp_path / "pairs.md").read_text()
