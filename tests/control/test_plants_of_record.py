@@ -10,8 +10,9 @@ from deapull.surrogate import store
 from tests.conftest import REPO
 
 PRESETS = REPO / "control" / "presets"
-#: the published figures that name their models (control_fem.json predates the record)
-PUBLISHED = {"surrogate": REPO / "bench" / "reference" / "control_surrogate.json"}
+#: the published figures that name their models
+PUBLISHED = {"surrogate": REPO / "bench" / "reference" / "control_surrogate.json",
+             "fem": REPO / "bench" / "reference" / "control_fem.json"}
 F_A = {f"C{i}{s}" for i in range(3, 8) for s in ("", "_fast")}
 
 
