@@ -347,6 +347,33 @@ def fem_speed_headline(result: dict) -> str:
                       f"{_f(base.get('wall_s'), '.0f')} s, same run) | {ABAQUS_S:.0f} s (ABAQUS) |"])
 
 
+def control_headline(result: dict) -> str:
+    """The README's control lines (``make control``): the MPC on the surrogate plants at each noise,
+    reached and settled, beside the paper's criterion (Fig. 6)."""
+    rows = ["| what | ours | paper |", "|---|---|---|"]
+    mpc = [g for g in result["groups"] if g["policy"] == "mpc"]
+    for noise in sorted({g["noise_std_m"] for g in mpc}):
+        gs = [g for g in mpc if g["noise_std_m"] == noise]
+        its = sorted(n for g in gs for n in g.get("iterations", []) if n is not None)
+        n = sum(g["episodes"] for g in gs)
+        rows.append(f"| control: MPC on the surrogate plants ({', '.join(g['plant'] for g in gs)}), noise {noise:g} m | "
+                    f"reached {sum(g['reached'] for g in gs)}/{n}, median {_f(float(np.median(its)) if its else None, '.0f')} "
+                    f"iterations; settled within ±10 µm {sum(g['settled'] for g in gs)}/{n} | reached, ≤ 200 iterations |")
+    return "\n".join(rows)
+
+
+def control_fem_headline(result: dict) -> str:
+    """The README's line of the MPC on the FEM plants (``make control PRESET=fem``)."""
+    gs = [g for g in result["groups"] if g["policy"] == "mpc"]
+    its = sorted(n for g in gs for n in g.get("iterations", []) if n is not None)
+    worst = max((g["largest_overshoot_m"] or 0.0) for g in gs) if gs else None
+    return "\n".join(["| what | ours | paper |", "|---|---|---|",
+                      f"| control: MPC on the FEM plants ({len(gs)} setups, 80 % of each one's travel, noise 1e-4 m) | "
+                      f"settled {sum(g['settled'] for g in gs)}/{sum(g['episodes'] for g in gs)}, median "
+                      f"{_f(float(np.median(its)) if its else None, '.0f')} iterations, at most "
+                      f"{_f(None if worst is None else 1e6 * worst, '.1f')} µm past | – (the paper controls surrogates only) |"])
+
+
 #: block name -> (results file, renderer)
 BLOCKS = {
     "fem_speed": ("bench/reference/fem_speed.json", fem_speed),
@@ -358,6 +385,8 @@ BLOCKS = {
     "surrogate_headline": ("bench/reference/surrogate_experiments.json", surrogate_headline),
     "control_goals": ("bench/reference/control_surrogate.json", control_goals),
     "control_fem": ("bench/reference/control_fem.json", control_fem),
+    "control_headline": ("bench/reference/control_surrogate.json", control_headline),
+    "control_fem_headline": ("bench/reference/control_fem.json", control_fem_headline),
     "control_fem_multi": ("bench/reference/control_fem_multi.json", control_fem_multi),
     "inference_calibration": ("bench/reference/inference_calibration.json", inference_calibration),
 }

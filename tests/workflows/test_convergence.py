@@ -212,6 +212,22 @@ def test_the_fem_control_block_judges_g5_on_all_eight_plants():
     assert "settled 16/24" in docs_tables.control_fem(slow) and "not met" in docs_tables.control_fem(slow)
 
 
+def test_the_readmes_control_lines_pool_the_plants_of_each_noise():
+    """The README's control lines: per noise the MPC's episodes on both surrogate plants pooled (the
+    other policies left out), and the FEM plants' settled count, median and worst overshoot."""
+    def group(policy, plant, noise, its, reached, settled):
+        return {"policy": policy, "plant": plant, "noise_std_m": noise, "episodes": len(its), "reached": reached,
+                "settled": settled, "iterations": list(its), "largest_overshoot_m": 3e-6}
+    result = {"groups": [group("mpc", "surrogate:C1", 1e-4, (80, 90), 2, 2), group("mpc", "surrogate:C2", 1e-4, (100, None), 1, 0),
+                         group("pd", "surrogate:C1", 1e-4, (1500, 1500), 2, 2), group("mpc", "surrogate:C1", 0.0, (84, 84), 2, 2)]}
+    text = docs_tables.control_headline(result)
+    assert "noise 0.0001 m | reached 3/4, median 90 iterations; settled within ±10 µm 2/4" in text
+    assert "noise 0 m | reached 2/2, median 84" in text and text.count("| control:") == 2
+    fem = {"groups": [group("mpc", f"fem:C{k}", 1e-4, (400, 250, 260), 3, 3 - (k == 1)) for k in range(1, 9)]}
+    assert "(8 setups, 80 % of each one's travel, noise 1e-4 m) | settled 23/24, median 260 iterations, at most 3.0 µm past" \
+        in docs_tables.control_fem_headline(fem)
+
+
 def test_the_multi_setpoint_block_is_met_only_where_every_setpoint_settled():
     """The push-push-pull-back task's rows come from the episodes' rows (summary_counts keeps each
     episode's setpoints settled and iterations to each), and the goal needs every setpoint settled."""
