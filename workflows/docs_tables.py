@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from deapull.io import atomic_write
-from deapull.paper import ABAQUS_S
+from deapull.paper import ABAQUS_S, CONTROL
 
 REPO = Path(__file__).resolve().parents[1]
 PAGES = ("README.md", "docs/physics.md", "docs/fem_accuracy.md", "docs/surrogate.md", "docs/control.md")
@@ -358,7 +358,7 @@ def control_headline(result: dict) -> str:
         n = sum(g["episodes"] for g in gs)
         rows.append(f"| control: MPC on the surrogate plants ({', '.join(g['plant'] for g in gs)}), noise {noise:g} m | "
                     f"reached {sum(g['reached'] for g in gs)}/{n}, median {_f(float(np.median(its)) if its else None, '.0f')} "
-                    f"iterations; settled within ±10 µm {sum(g['settled'] for g in gs)}/{n} | reached, ≤ 200 iterations |")
+                    f"iterations; settled within ±10 µm {sum(g['settled'] for g in gs)}/{n} | reached, {CONTROL['mpc'][0]} iterations |")
     return "\n".join(rows)
 
 
