@@ -5,6 +5,11 @@
 * ``f-coulomb`` — :class:`~deapull.surrogate.models.tip_contact.TipContactModel`, f = d∘m
   grounded in the FEM's contact mechanics (the tip's stroke and pressing force from m, two
   Coulomb contacts in d; φ = (m_c, μ_b, μ_t));
+* ``f-patch`` — :class:`~deapull.surrogate.models.tip_contact.TipPatchModel`, f-coulomb whose
+  tip patch spreads with V (the coin lags the tip more at a larger friction margin); needs
+  coins of two or more friction pairs;
+* ``f-patch-lag`` — :class:`~deapull.surrogate.models.tip_contact.TipPatchLagModel`, f-patch
+  whose patch also depends on the coin's lag behind the tip (the held-out pair model);
 * ``f-memory`` — :class:`~deapull.surrogate.models.memory.TipMemoryModel`, the tip-contact f
   with the tip's memory (its compliance carries the friction between steps, so the friction
   reverses when the voltage turns; Fy depends on it);

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 
 import numpy as np
 import pytest
@@ -342,3 +343,10 @@ def test_phi_of_a_dataset_without_mu_t_names_the_file_and_attribute(sweep):
     with pytest.raises(DatasetError, match=r"C1.nc: attribute 'coin_mu_t' is missing"):
         KINDS["f-coulomb"].phi_of(data)
     assert KINDS["nn"].phi_of(data).mass_kg == data.mass_kg, "the black boxes need no μ_t"
+
+
+def test_the_package_docstring_lists_every_registered_kind():
+    import deapull.surrogate.models as models
+    listed = set(re.findall(r"^\* ``([a-z-]+)``", models.__doc__, flags=re.M)) | {
+        k for k in re.findall(r"``([a-z-]+)``", models.__doc__) if k in ("nn", "lstm")}
+    assert listed == set(KINDS), f"listed {sorted(listed)}, registered {sorted(KINDS)}"
