@@ -113,9 +113,7 @@ it). The first V_f is that episode's end (where it turned back, if it went past 
 to the target by f_a's slope. Each scheduled episode holds V_f and averages its observations until
 its first re-centring: the mean of a landing. The landing line, fitted by weighted least squares
 to the landings and the first episode's end (a tolerance uncertain, ``LEARN_PATH_SHARE``) with
-f_a's slope as a prior, gives the next V_f: the voltage of least expected squared miss over the
-line's posterior (where the line meets the target once the landings fix its slope, a fifth of that
-step while the slope is f_a's prior alone); the hold's estimate starts
+f_a's slope as a prior, gives the next V_f where it meets the target; the hold's estimate starts
 from the line's value there and its variance, the observations refine it, and the re-centring
 steps only where they move it confidently off the target.
 """
@@ -390,7 +388,7 @@ class MPCPolicy(Policy):
         one target (by its own estimate, at most ``LEARN_STD`` tolerances uncertain) gives the first point of the
         landing line: where it ended, or where it turned back if it went past, and f_a's slope. A
         scheduled episode adds the mean of its held observations where the schedule landed. The
-        next end voltage is the one of least expected squared miss on the line fitted to them (:meth:`_landing_fit`)."""
+        next end voltage is where the line fitted to them crosses the target (:meth:`_landing_fit`)."""
         if not (self.config.learn and self.config.terminal) or self.spec is None or self.previous is None or self.bias is None:
             return
         x, _, V = self.previous
@@ -436,7 +434,7 @@ class MPCPolicy(Policy):
     def _landing_fit(self, entry: dict) -> tuple[float, float, float]:
         """The landing line x = c + b (V − V̄) by weighted least squares over the landings seen (each
         mean weighted by its count over σ²) and the first episode's end, with f_a's slope as a prior
-        on b (:data:`SLOPE_PRIOR` × its size as std): the end voltage of least expected squared miss,
+        on b (:data:`SLOPE_PRIOR` × its size as std): the end voltage where it crosses the target,
         clipped to the voltage range, and the line's value and variance there (what the next hold
         starts from)."""
         points = [entry["start"], *entry["landings"]]
@@ -456,13 +454,7 @@ class MPCPolicy(Policy):
         if not b * b0 > 0:                  # the data say the wrong sign: keep f_a's
             b = b0
 
-        # the end voltage of the least expected squared miss E[(c + b ΔV − x^T)²] over the line's
-        # posterior: where the slope is as uncertain as f_a's prior leaves it, the step is a fifth of
-        # the line's crossing (fem:C1 at 80 % of its travel: f_a's −9.4 µm/V against the plant's
-        # ≈ −30; tests/control/test_mpc.py::test_an_uncertain_slope_takes_a_cautious_step)
-        (var_c, cov_cb), (_, var_b) = cov.tolist()
-        step = (b * (self.target_m - c) - cov_cb) / (b * b + var_b)
-        V_f = min(max(V_mean + step, 0.0), self.v_max_V)
+        V_f = min(max(V_mean + (self.target_m - c) / b, 0.0), self.v_max_V)
         row = torch.tensor([1.0, V_f - V_mean], dtype=torch.float64)
         return V_f, c + b * (V_f - V_mean), float(row @ cov @ row)
 

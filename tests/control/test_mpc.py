@@ -771,7 +771,7 @@ def test_the_learnt_schedule_lands_where_the_landings_say(coulomb, sweep):
     target. Noise-free on the fixture's surrogate the third episode lands on the target to the
     line's accuracy, closer than the second (the first episode's end on its own path, moved
     by f_a's slope). Broken once (the landings left out of the fit): every learnt episode lands
-    where the second did."""
+    where the second did, 0.12 µm off."""
     from deapull.control.env import CoinPushEnv
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
@@ -784,7 +784,7 @@ def test_the_learnt_schedule_lands_where_the_landings_say(coulomb, sweep):
     assert len(learned["landings"]) == 2                  # episodes 2 and 3 (episode 4's joins at the next reset)
     landed = [V_x[1] for V_x in learned["landings"]]
     errors = [abs(x + 0.4e-3) for x in landed]
-    assert errors[1] < 0.9 * errors[0] and errors[1] < 2e-6
+    assert errors[1] < 0.5 * errors[0] and errors[1] < 2e-6
     assert all(r["settled"] for r in rows[2:])
 
 
@@ -794,8 +794,8 @@ def test_the_landing_line_learns_a_slope_that_f_a_has_wrong(coulomb, sweep):
     landing line's prior only. The points are a recorded run (surrogate preset, surrogate:C1 at
     σ = 0.1 mm, episode 6: episode 1's end at 400 V and four landings' means), f_a's slope
     −3.06 µm/V; the plant's own landings, read off the episodes that held where they landed, lie at
-    −11 µm/V. The next end voltage puts the plant's landing inside the ±10 µm window (399.16 V,
-    4.5 µm past). Broken once (the prior's std at half f_a's slope, as before): 399.91 V, 13 µm past."""
+    −11 µm/V. The next end voltage puts the plant's landing inside the ±10 µm window (399.20 V,
+    5 µm past). Broken once (the prior's std at half f_a's slope, as before): 399.91 V, 13 µm past."""
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
     from deapull.control.plants import SurrogatePlant
     plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
@@ -809,28 +809,7 @@ def test_the_landing_line_learns_a_slope_that_f_a_has_wrong(coulomb, sweep):
     V_f, x_f, _ = policy._landing_fit(entry)
     plant_V = [398.5, 398.62, 399.0, 399.2, 399.33, 399.76, 399.9]
     plant_x = [-997.1, -998.4, -1002.7, -1005.0, -1006.5, -1011.4, -1013.0]
-    assert abs(np.interp(V_f, plant_V, plant_x) + 1000.0) < 10.0 and x_f == pytest.approx(-1e-3, abs=1e-6)
-
-
-def test_an_uncertain_slope_takes_a_cautious_step(coulomb, sweep):
-    """With one point the landing line's slope is f_a's, as uncertain as its prior leaves it, and the
-    next end voltage is the one of least expected squared miss over the line's posterior, not where
-    the line's mean crosses the target. The numbers are a recorded run (fem preset, fem:C1 at 80 %
-    of its travel, σ = 0.1 mm): episode 1 ended at 376.73 V with its estimate at −879.6 µm (the coin
-    at −893.0), f_a's slope −9.37 µm/V; the plant's ends at 376.73, 377.01 and 377.22 V lie at −30 µm/V.
-    The next end voltage puts the plant inside the ±10 µm window. Broken once (the crossing, as
-    before): 377.92 V, 33 µm past."""
-    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
-    from deapull.control.plants import SurrogatePlant
-    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
-    policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None), phi=plant.truth)
-    policy.target_m, policy.v_max_V = -890.67e-6, 400.0
-    entry = {"slope": -9.3743e-6, "start": (376.734, -879.55e-6, 1.5665e-10), "landings": []}
-    V_f, _, _ = policy._landing_fit(entry)
-    plant_V, plant_x = [376.734, 377.007, 377.220], [-893.05, -898.51, -905.46]
-    slope = (plant_x[-1] - plant_x[0]) / (plant_V[-1] - plant_V[0])
-    landed = np.interp(V_f, plant_V, plant_x) if V_f <= plant_V[-1] else plant_x[-1] + slope * (V_f - plant_V[-1])
-    assert abs(landed + 890.67) < 10.0, (V_f, landed)
+    assert abs(np.interp(V_f, plant_V, plant_x) + 1000.0) < 10.0 and x_f == pytest.approx(-1e-3)
 
 
 def test_f_as_slope_of_the_landing_reads_the_staircases_trend_not_one_steps_flat(coulomb, sweep, monkeypatch):
