@@ -347,6 +347,6 @@ def test_phi_of_a_dataset_without_mu_t_names_the_file_and_attribute(sweep):
 
 def test_the_package_docstring_lists_every_registered_kind():
     import deapull.surrogate.models as models
-    listed = set(re.findall(r"^\* ``([a-z-]+)``", models.__doc__, flags=re.M)) | {
-        k for k in re.findall(r"``([a-z-]+)``", models.__doc__) if k in ("nn", "lstm")}
+    bullets = re.findall(r"^\* (.*?) —", models.__doc__, flags=re.M)
+    listed = {kind for bullet in bullets for kind in re.findall(r"``([a-z-]+)``", bullet)}
     assert listed == set(KINDS), f"listed {sorted(listed)}, registered {sorted(KINDS)}"
