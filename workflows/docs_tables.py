@@ -315,6 +315,22 @@ def inference_calibration(result: dict) -> str:
     return "\n".join(rows)
 
 
+def stability(result: dict) -> str:
+    """``make stability``: the suite's table as its run wrote it (stability.json), its header, the
+    pull-in detections and the cases that did not do what they were expected to."""
+    table = result["table"]
+    keep = ("case", "as expected", "steps", "Newton its", "cut-backs", "fewest contact pts", "travel mm", "wall s",
+            "outcome")
+    cols = [table["headers"].index(h) for h in keep if h in table["headers"]]
+    lines = ["| " + " | ".join(table["headers"][i] for i in cols) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(str(row[i]).replace("|", "\\|") for i in cols) + " |" for row in table["rows"]]
+    unexpected = result["not_as_expected"]
+    lines += ["", result["header"], ""] + [f"* {note}" for note in result["pull_in"]]
+    lines += ["", f"{len(table['rows']) - len(unexpected)} of {len(table['rows'])} cases as expected"
+              + (f"; not as expected: {', '.join(unexpected)}." if unexpected else ".")]
+    return "\n".join(lines)
+
+
 def fem_speed(result: dict) -> str:
     """``make bench BENCH=fem``: C3 on one core at the data fidelity beside the baseline timed in the same
     run, the preview, the sweep when timed, ABAQUS and the goals."""
@@ -389,6 +405,7 @@ BLOCKS = {
     "control_fem_headline": ("bench/reference/control_fem.json", control_fem_headline),
     "control_fem_multi": ("bench/reference/control_fem_multi.json", control_fem_multi),
     "inference_calibration": ("bench/reference/inference_calibration.json", inference_calibration),
+    "stability": ("bench/reference/stability.json", stability),
 }
 
 _BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(\n<!-- /results:(?P=name) -->)", re.S)

@@ -282,3 +282,15 @@ def test_the_pairs_table_gives_the_bands_coverage_beside_its_goal():
     for r in result["runs"]:
         r.pop("band_coverage")
     assert "band covers" not in docs_tables.surrogate_pairs(result)
+
+
+def test_the_stability_block_counts_and_names_the_cases_not_as_expected():
+    headers = ["case", "converged", "as expected", "steps", "Newton its", "cut-backs", "travel mm", "wall s", "outcome"]
+    result = {"header": "Study `stability`", "pull_in": ["`pullin`: detected at V = 900 V"],
+              "table": {"headers": headers, "rows": [["a", "yes", "yes", "101", "300", "0", "1.2", "60", "converged"],
+                                                     ["b", "no", "no", "40", "900", "12", "–", "30", "failed: x|y"]]},
+              "not_as_expected": ["b"]}
+    text = docs_tables.stability(result)
+    assert "| a | yes | 101 | 300 | 0 | 1.2 | 60 | converged |" in text
+    assert "failed: x\\|y" in text and "converged | yes" not in text      # the cell's bar escaped; a column left out
+    assert text.endswith("1 of 2 cases as expected; not as expected: b.") and "* `pullin`: detected" in text
