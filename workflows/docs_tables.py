@@ -17,7 +17,6 @@ from deapull.io import atomic_write
 from deapull.paper import ABAQUS_S, CONTROL
 
 REPO = Path(__file__).resolve().parents[1]
-PAGES = ("README.md", "docs/physics.md", "docs/fem_accuracy.md", "docs/surrogate.md", "docs/control.md")
 
 
 def _f(value, fmt: str) -> str:
@@ -425,9 +424,14 @@ def render(text: str, root: Path = REPO) -> str:
     return _BLOCK.sub(block, text)
 
 
+def pages(root: Path = REPO) -> list[str]:
+    """The pages that may carry results blocks: the README and every page of docs/."""
+    return ["README.md", *sorted(p.relative_to(root).as_posix() for p in (root / "docs").glob("*.md"))]
+
+
 def stale_pages(root: Path = REPO) -> list[str]:
     """The pages whose results blocks differ from their files."""
-    return [p for p in PAGES if (root / p).is_file() and render((root / p).read_text(), root) != (root / p).read_text()]
+    return [p for p in pages(root) if (root / p).is_file() and render((root / p).read_text(), root) != (root / p).read_text()]
 
 
 def write_pages(root: Path = REPO) -> list[str]:

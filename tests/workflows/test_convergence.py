@@ -294,3 +294,9 @@ def test_the_stability_block_counts_and_names_the_cases_not_as_expected():
     assert "| a | yes | 101 | 300 | 0 | 1.2 | 60 | converged |" in text
     assert "failed: x\\|y" in text and "converged | yes" not in text      # the cell's bar escaped; a column left out
     assert text.endswith("1 of 2 cases as expected; not as expected: b.") and "* `pullin`: detected" in text
+
+
+def test_every_docs_page_is_checked_for_stale_tables(tmp_path):
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "new_page.md").write_text("<!-- results:headline -->\nold\n<!-- /results:headline -->\n")
+    assert docs_tables.stale_pages(tmp_path) == ["docs/new_page.md"]
