@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deapull.io import atomic_write
+from deapull.io import atomic_write, markdown_of
 from deapull.paper import ABAQUS_S, CONTROL
 
 REPO = Path(__file__).resolve().parents[1]
@@ -321,8 +321,8 @@ def stability(result: dict) -> str:
     keep = ("case", "as expected", "steps", "Newton its", "cut-backs", "fewest contact pts", "travel mm", "wall s",
             "outcome")
     cols = [table["headers"].index(h) for h in keep if h in table["headers"]]
-    lines = ["| " + " | ".join(table["headers"][i] for i in cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(str(row[i]).replace("|", "\\|") for i in cols) + " |" for row in table["rows"]]
+    lines = [markdown_of({"headers": [table["headers"][i] for i in cols],
+                          "rows": [[row[i] for i in cols] for row in table["rows"]]})]
     unexpected = result["not_as_expected"]
     lines += ["", result["header"], ""] + [f"* {note}" for note in result["pull_in"]]
     lines += ["", f"{len(table['rows']) - len(unexpected)} of {len(table['rows'])} cases as expected"
