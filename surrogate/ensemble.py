@@ -10,12 +10,19 @@ with a floor δ = :data:`FLOOR_SHARE` × max |x̄| (members that agree exactly s
 FEM's own spread) and k calibrated on the validation run(s): the :data:`LEVEL` quantile of
 |x_FEM − x̄| / (σ + δ) over their points, so that the band covers that share of the
 validation points. Its coverage of held-out runs (the test setups of ``deapull
-experiments``) is what the band is judged by. :func:`save` writes the members under
+experiments``) is what the band is judged by.
+
+The models train where the voltage rises; once it has fallen (a release, a triangle's turn)
+they extrapolate, and their error grows well beyond the members' spread. So a band may carry
+a second scale k_fallen for the points at and after the voltage's first fall
+(:func:`fallen`), calibrated on the validation runs' points there (``deapull
+experiments-protocols``: the validation coin's excitation runs), k for the points before. :func:`save` writes the members under
 ``<model>/members/seed<k>/`` and the calibration into ``ensemble.json``.
 """
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +57,11 @@ class Band:
         inside = (x_true[1:] >= self.lower[1:]) & (x_true[1:] <= self.upper[1:])
         return float(inside.mean())
 
+    def half_width_share(self, x_true: np.ndarray) -> float:
+        """The band's mean half-width over the predicted points, as a share of the run's travel
+        (the largest |x| of ``x_true``): how much a coverage costs."""
+        return float(0.5 * (self.upper[1:] - self.lower[1:]).mean() / np.abs(x_true).max())
+
 
 def member_x(models, data, phi) -> np.ndarray:
     """(M, T + 1): each member's 1 s rollout of ``data``'s actions for the coin ``phi``."""
@@ -66,21 +78,34 @@ def _spread(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, x.std(0) + FLOOR_SHARE * np.abs(mean).max()
 
 
-def calibrate(models, val_sets, phis: dict, level: float = LEVEL) -> float:
-    """k such that x̄ ± k (σ + δ) covers ``level`` of the validation runs' points."""
+def fallen(data) -> np.ndarray:
+    """(T + 1,) bool: the points at and after the first where the voltage is below an earlier one."""
+    V = np.asarray(data.V, dtype=float)
+    drop = V < np.maximum.accumulate(V) - 1e-9 * max(np.abs(V).max(), 1.0)
+    return np.logical_or.accumulate(drop)
+
+
+def calibrate(models, val_sets, phis: dict, level: float = LEVEL, where=None) -> float:
+    """k such that x̄ ± k (σ + δ) covers ``level`` of the validation runs' points (of those
+    where ``where(data)`` is True, when given; NaN where there are none)."""
     if len(models) < 2:
         raise InputError(f"an ensemble needs at least 2 members, got {len(models)} (train with restarts >= 2)")
     ratios = []
     for data in val_sets:
         mean, width = _spread(member_x(models, data, phis[data.name]))
-        ratios.append(np.abs(data.x[1:] - mean[1:]) / width[1:])
-    return float(np.quantile(np.concatenate(ratios), level))
+        keep = np.ones(len(data.x), dtype=bool) if where is None else where(data)
+        ratios.append((np.abs(data.x - mean) / width)[1:][keep[1:]])
+    ratios = np.concatenate(ratios)
+    return float(np.quantile(ratios, level)) if len(ratios) else math.nan
 
 
-def band(models, k: float, data, phi) -> Band:
-    """The band of the rollout of ``data``'s actions for the coin ``phi``."""
+def band(models, k: float, data, phi, k_fallen: float | None = None) -> Band:
+    """The band of the rollout of ``data``'s actions for the coin ``phi``; with ``k_fallen``,
+    that scale where the voltage has fallen (:func:`fallen`)."""
     x = member_x(models, data, phi)
     mean, width = _spread(x)
+    if k_fallen is not None:
+        width = width * np.where(fallen(data), k_fallen / k, 1.0)
     return Band(t=data.t, mean=mean, lower=mean - k * width, upper=mean + k * width, x=x)
 
 
@@ -94,6 +119,24 @@ def save(result, folder: str | Path, k: float) -> Path:
                                                  "seeds": seeds, "calibrated_on": [d.name for d in result.val_sets]},
                                                 indent=2) + "\n")
     return folder
+
+
+def calibrated_on(folder: str | Path) -> list[str]:
+    """The names of the runs a saved ensemble's k was calibrated on."""
+    return list(json.loads((Path(folder) / CALIBRATION).read_text())["calibrated_on"])
+
+
+def write_calibration(folder: str | Path, k: float, runs: list[str], k_fallen: float | None = None) -> None:
+    """Replace a saved ensemble's k (and k_fallen), calibrated on the runs named ``runs``."""
+    path = Path(folder) / CALIBRATION
+    meta = json.loads(path.read_text())
+    write_text(path, json.dumps({**meta, "level": LEVEL, "floor_share": FLOOR_SHARE, "k": k, "k_fallen": k_fallen,
+                                 "calibrated_on": runs}, indent=2) + "\n")
+
+
+def k_fallen(folder: str | Path) -> float | None:
+    """A saved ensemble's scale where the voltage has fallen (None: k throughout)."""
+    return json.loads((Path(folder) / CALIBRATION).read_text()).get("k_fallen")
 
 
 def load(folder: str | Path) -> tuple[list, float]:

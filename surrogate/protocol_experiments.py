@@ -54,7 +54,7 @@ COLUMNS = {"ramp": ("ramp",), "rhr": ("rhr",), "release": ("release",), "triangl
 EXCITATION_PROTOCOLS = tuple(p for column, protocols in COLUMNS.items() if column != "ramp" for p in protocols)
 CSV_COLUMNS = ("model", "run", "coin", "protocol", "role", "x_error_pct_travel", "mae_x_m", "max_abs_x_error_m",
                "final_x_error_m", "travel_m", "mae_Fx_N", "mae_Fy_N", "diverged", "steps", "rollout_ms",
-               "out_of_range_warnings", "band_coverage")
+               "out_of_range_warnings", "band_coverage", "band_half_width_pct_travel")
 
 
 @dataclass(frozen=True)
@@ -169,20 +169,55 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
             phis.update({run_name(c, p): phi for p in design.train_protocols})
     result = train(replace(base, kind=kind), train_runs, val_runs, phis=phis)
     store.save(result.model, folder, {**result.summary(), "design": design.__dict__}, result.history)
-    if len(result.members) >= 2:     # the restarts' ensemble, calibrated on the validation coins' runs
+    if len(result.members) >= 2:     # the restarts' ensemble; calibrate_band sets its k
         ensemble.save(result, folder, ensemble.calibrate(result.members, result.val_sets, result.phis))
     return result.model, result.summary()
+
+
+def calibration_runs(design: Design, data_dir: Path, excitation_dir: Path) -> list[tuple[str, str]]:
+    """The runs an ensemble's band is calibrated on, as (coin, protocol): every run of the
+    validation coins, the ramp and each excitation protocol present. The band then carries the
+    error of the protocols the models did not train on (the voltage falling) as the validation
+    coin shows it; no test coin's run enters."""
+    return [(c, p) for c in design.val_coins for p in ("ramp", *EXCITATION_PROTOCOLS)
+            if run_path(data_dir, excitation_dir, c, p).is_file()]
+
+
+def calibrate_band(kind: str, design: Design, data_dir: Path, excitation_dir: Path, out: Path):
+    """The ensemble (members, k, k_fallen) of ``out/<kind>``, calibrated on
+    :func:`calibration_runs` (again only when those runs changed): k on their points before the
+    voltage first falls, k_fallen on those after (None when no run's voltage falls); None
+    without an ensemble."""
+    folder = out / kind
+    if not (folder / ensemble.CALIBRATION).is_file():
+        return None
+    members, k = ensemble.load(folder)
+    runs = calibration_runs(design, data_dir, excitation_dir)
+    names = [run_name(c, p) for c, p in runs]
+    if ensemble.calibrated_on(folder) != names or "k_fallen" not in json.loads((folder / ensemble.CALIBRATION).read_text()):
+        data, phis = [], {}
+        for c, p in runs:
+            data.append(_load(data_dir, excitation_dir, c, p))
+            phi = coin_phi(kind, _load(data_dir, excitation_dir, c, "ramp"))
+            phis[data[-1].name] = phi if phi is not None else members[0].phi_of(data[-1])
+        k = ensemble.calibrate(members, data, phis, where=lambda d: ~ensemble.fallen(d))
+        k_fallen = ensemble.calibrate(members, data, phis, where=ensemble.fallen)
+        k_fallen = None if math.isnan(k_fallen) else k_fallen
+        ensemble.write_calibration(folder, k, names, k_fallen)
+        log.info("%s: band calibrated on %s (k = %.3g, where the voltage has fallen %s)", kind, ", ".join(names), k,
+                 "k" if k_fallen is None else f"{k_fallen:.3g}")
+    return members, k, ensemble.k_fallen(folder)
 
 
 def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_dir: Path, excitation_dir: Path,
                   out: Path, band=None) -> dict:
     """The row of one model on one run (reused from ``<out>/<kind>/eval/<run>.json`` when newer
-    than the model); ``band``: the model's ensemble (members, k), whose coverage of the run the row
+    than the model); ``band``: the model's ensemble (members, k, k_fallen), whose coverage of the run the row
     gives."""
     name = run_name(coin, protocol)
     cache = out / kind / "eval" / f"{name}.json"
     inputs = [out / kind / "model.pt", run_path(data_dir, excitation_dir, coin, protocol),
-              run_path(data_dir, excitation_dir, coin, "ramp")]
+              run_path(data_dir, excitation_dir, coin, "ramp"), *([out / kind / ensemble.CALIBRATION] if band else [])]
     if cache.is_file() and all(f.is_file() and cache.stat().st_mtime >= f.stat().st_mtime for f in inputs):
         return json.loads(cache.read_text())
     data = _load(data_dir, excitation_dir, coin, protocol)
@@ -190,12 +225,14 @@ def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_di
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", OutOfRangeWarning)
         ev = evaluate(model, data, phi=phi)
-    coverage = None
+    coverage = width = None
     if band is not None:
-        members, k = band
-        coverage = ensemble.band(members, k, data, phi if phi is not None else model.phi_of(data)).coverage(data.x)
+        members, k, k_fallen = band
+        b = ensemble.band(members, k, data, phi if phi is not None else model.phi_of(data), k_fallen)
+        coverage, width = b.coverage(data.x), 100 * b.half_width_share(data.x)
     row = {**{k: ev.metrics.get(k) for k in CSV_COLUMNS}, "model": kind, "run": name, "coin": coin,
            "protocol": protocol, "role": role, "out_of_range_warnings": len(caught), "band_coverage": coverage,
+           "band_half_width_pct_travel": width,
            "t": ev.t.tolist(), "x_fem": ev.x_fem.tolist(), "x_model": ev.x_model.tolist()}
     write_json(cache, row)
     return row
@@ -227,7 +264,7 @@ def run(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, excitation
         cfg = replace(base, restarts=(restarts or {}).get(kind, base.restarts))   # restarts: per kind, or base's
         model, _ = train_or_load(kind, cfg, design, data_dir, excitation_dir, out)
         # a model trained with restarts keeps its ensemble: the band of every run
-        band = ensemble.load(out / kind) if (out / kind / ensemble.CALIBRATION).is_file() else None
+        band = calibrate_band(kind, design, data_dir, excitation_dir, out)
         for coin, protocol, role in todo:
             rows.append(evaluate_case(model, kind, coin, protocol, role, data_dir, excitation_dir, out, band))
     summary = summarise(rows, kinds)
@@ -425,7 +462,9 @@ def run_pairs(data_dir: str | Path, out_dir: str | Path, base: TrainConfig, kind
         "runs": [{"pair": p, "run": n, "protocol": by[(kinds[0], n)]["protocol"], "travel_m": by[(kinds[0], n)]["travel_m"],
                   **{k: None if by[(k, n)]["diverged"] else by[(k, n)]["x_error_pct_travel"] for k in kinds},
                   "band_coverage": {k: by[(k, n)]["band_coverage"] for k in kinds
-                                    if by[(k, n)].get("band_coverage") is not None}}
+                                    if by[(k, n)].get("band_coverage") is not None},
+                  "band_half_width_pct_travel": {k: by[(k, n)]["band_half_width_pct_travel"] for k in kinds
+                                                 if by[(k, n)].get("band_half_width_pct_travel") is not None}}
                  for p, n in runs], "band_level": ensemble.LEVEL}, indent=2)
     return rows
 
@@ -446,9 +485,12 @@ def pairs_table(rows: list[dict], kinds) -> str:
             shown = f"{worst:.2f} % of travel" if math.isfinite(worst) else "diverged"
             lines.append(f"* {KINDS[k].label}: largest x error on a held-out {what} {shown}")
             cover = [by[(k, n)]["band_coverage"] for n in group if by[(k, n)].get("band_coverage") is not None]
+            width = [by[(k, n)].get("band_half_width_pct_travel") for n in group]
+            width = "" if None in width else f", its half-width {np.mean(width):.1f} % of travel"
             if cover:
                 lines.append(f"* {KINDS[k].label}: its {100 * ensemble.LEVEL:.0f} % band covers "
-                             f"{100 * np.mean(cover):.1f} % of the held-out {what}s' points (lowest {100 * min(cover):.1f} %)")
+                             f"{100 * np.mean(cover):.1f} % of the held-out {what}s' points (lowest {100 * min(cover):.1f} %)"
+                             + width)
     return (markdown_table(table, [("held-out pair", "pair", "s"), ("run", "run", "s"), ("travel mm", "travel", ".3f")]
                            + [(f"{KINDS[k].label} x error [%]", k, "s") for k in kinds])
             + "\n\n" + "\n".join(lines))

@@ -170,10 +170,12 @@ def surrogate_pairs(result: dict) -> str:
             shown = f"largest {_f(worst, '.2f')} %" if math.isfinite(worst) else "a rollout diverged"
             rows.append(f"* {labels[k]}, held-out {what}: {shown} (goal ≤ {goal} %);")
             cover = [r["band_coverage"][k] for r in group if k in r.get("band_coverage", {})]
+            width = [r["band_half_width_pct_travel"][k] for r in group if k in r.get("band_half_width_pct_travel", {})]
+            width = f", its mean half-width {sum(width) / len(width):.1f} % of travel" if width else ""
             if cover:
                 rows.append(f"* {labels[k]}, held-out {what}: its {100 * result.get('band_level', 0.9):.0f} % band covers "
                             f"{100 * sum(cover) / len(cover):.1f} % of the points (lowest {100 * min(cover):.1f} %; "
-                            "goal ≥ 80 %);")
+                            f"goal ≥ 80 %){width};")
     if "data" in result:
         rows.append(f"* data: fidelity {', '.join(result['data']['fidelity'])} "
                     f"({', '.join(result['data']['fidelity_id'])});")

@@ -29,6 +29,34 @@ def test_the_band_covers_its_level_of_the_validation_run_and_saves(restarts, swe
     assert np.array_equal(ensemble.band(again, k, val, again[0].phi_of(val)).upper, band.upper)
 
 
+def test_where_the_voltage_has_fallen_the_band_takes_the_scale_calibrated_there(restarts, sweep):
+    """The models train where the voltage rises; past its first fall their error outgrows the
+    members' spread. A run whose voltage turns at its middle (C2's ramp up to there, then down, its
+    FEM x kept: the models are far off after the turn) gets k_fallen, calibrated on its points after
+    the turn, and k on those before: each part is covered at the level, and k_fallen > k. Broken
+    once with k_fallen not applied in ``band``: the fallen part's coverage fell below 0.5."""
+    from dataclasses import replace
+    members, val = restarts.members, sweep["C2"]
+    turn = len(val.V) // 2
+    V = np.concatenate([val.V[:turn + 1], val.V[turn - 1::-1][:len(val.V) - turn - 1]])
+    turned = replace(val, V=V, name="C2_turned")
+    fallen = ensemble.fallen(turned)
+    assert not fallen[:turn + 1].any() and fallen[turn + 1:].all() and not ensemble.fallen(val).any()
+    phis = {"C2": restarts.phis["C2"], "C2_turned": restarts.phis["C2"]}
+    k = ensemble.calibrate(members, [val, turned], phis, where=lambda d: ~ensemble.fallen(d))
+    k_fallen = ensemble.calibrate(members, [val, turned], phis, where=ensemble.fallen)
+    assert k_fallen > k
+    band = ensemble.band(members, k, turned, restarts.phis["C2"], k_fallen)
+    one_scale = ensemble.band(members, k, turned, restarts.phis["C2"])
+
+    def covered(b):                 # share of the points after the turn inside the band
+        return ((turned.x >= b.lower) & (turned.x <= b.upper))[1:][fallen[1:]].mean()
+    # at least the level (the quantile's ties round up), and far more than one scale covers
+    assert covered(band) >= ensemble.LEVEL and covered(one_scale) < 0.5
+    assert np.array_equal(band.upper[:turn + 1], one_scale.upper[:turn + 1])
+    assert np.isnan(ensemble.calibrate(members, [val], phis, where=ensemble.fallen))
+
+
 def test_experiments_repeat_with_new_seeds_and_report_the_spread_and_the_band(sweep_dir, tmp_path):
     rows = experiments.run(sweep_dir, tmp_path, TrainConfig(kind="f-coulomb", epochs=3), kinds=["f-coulomb", "nn"],
                            sets=[1], restarts={"f-coulomb": 2, "nn": 1}, repeats=2)
@@ -65,3 +93,18 @@ def test_held_out_pairs_trained_with_restarts_carry_a_band_on_every_held_out_run
     assert all(set(r["band_coverage"]) == {"f-coulomb"} for r in pairs["runs"])
     assert pairs["data"]["fidelity_id"] == [run.fidelity_id]          # the data it was made on
     assert "90 % band covers" in (tmp_path / "pairs.md").read_text()
+
+
+def test_the_pair_band_is_calibrated_on_every_run_of_the_validation_coin_and_no_test_coins(sweep_dir, tmp_path):
+    """The held-out pairs' band is calibrated on the validation coin's ramp and its excitation runs
+    (where the voltage falls), never on a held-out coin's. Broken once with the validation coin's
+    ramp only: C7_triangle was left out."""
+    from deapull.surrogate import protocol_experiments as pe
+    exc = tmp_path / "excitation"
+    exc.mkdir()
+    for name in ("C7_triangle", "C7_release", "C5_triangle", "C1_rhr"):
+        (exc / f"{name}.nc").symlink_to(sweep_dir / f"{name[:2]}.nc")
+    designs = dict(pe.pair_designs(test_protocols=("triangle", "release")))
+    runs = pe.calibration_runs(designs[("C5", "C6")], sweep_dir, exc)
+    assert runs == [("C7", "ramp"), ("C7", "release"), ("C7", "triangle")]
+    assert pe.calibration_runs(designs[("C7", "C8")], sweep_dir, exc) == [("C1", "ramp"), ("C1", "rhr")]
