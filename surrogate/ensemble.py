@@ -109,34 +109,33 @@ def band(models, k: float, data, phi, k_fallen: float | None = None) -> Band:
     return Band(t=data.t, mean=mean, lower=mean - k * width, upper=mean + k * width, x=x)
 
 
-def save(result, folder: str | Path, k: float) -> Path:
-    """Write the members of a :class:`~deapull.surrogate.train.TrainResult` and the calibration ``k``."""
+def save(result, folder: str | Path, k: float, k_fallen: float | None = None,
+         calibrated_on: list[str] | None = None) -> Path:
+    """Write the members of a :class:`~deapull.surrogate.train.TrainResult` and the calibration: ``k``
+    (and ``k_fallen``), calibrated on the runs named ``calibrated_on`` (default: the validation runs)."""
     folder = Path(folder)
     seeds = [r["seed"] for r in result.restarts]
     for seed, model in zip(seeds, result.members):
         store.save(model, folder / MEMBERS / f"seed{seed}")
-    write_text(folder / CALIBRATION, json.dumps({"level": LEVEL, "floor_share": FLOOR_SHARE, "k": k,
-                                                 "seeds": seeds, "calibrated_on": [d.name for d in result.val_sets]},
-                                                indent=2) + "\n")
+    runs = [d.name for d in result.val_sets] if calibrated_on is None else list(calibrated_on)
+    write_calibration(folder, k, runs, k_fallen, seeds)
     return folder
 
 
-def calibrated_on(folder: str | Path) -> list[str]:
-    """The names of the runs a saved ensemble's k was calibrated on."""
-    return list(json.loads((Path(folder) / CALIBRATION).read_text())["calibrated_on"])
+def calibration(folder: str | Path) -> dict:
+    """A saved ensemble's ``ensemble.json``: k, k_fallen (None: k throughout), the seeds and the
+    runs it was calibrated on."""
+    return json.loads((Path(folder) / CALIBRATION).read_text())
 
 
-def write_calibration(folder: str | Path, k: float, runs: list[str], k_fallen: float | None = None) -> None:
-    """Replace a saved ensemble's k (and k_fallen), calibrated on the runs named ``runs``."""
+def write_calibration(folder: str | Path, k: float, runs: list[str], k_fallen: float | None = None,
+                      seeds: list[int] | None = None) -> None:
+    """Write a saved ensemble's k (and k_fallen), calibrated on the runs named ``runs`` (its seeds:
+    ``seeds``, default those already written)."""
     path = Path(folder) / CALIBRATION
-    meta = json.loads(path.read_text())
-    write_text(path, json.dumps({**meta, "level": LEVEL, "floor_share": FLOOR_SHARE, "k": k, "k_fallen": k_fallen,
-                                 "calibrated_on": runs}, indent=2) + "\n")
-
-
-def k_fallen(folder: str | Path) -> float | None:
-    """A saved ensemble's scale where the voltage has fallen (None: k throughout)."""
-    return json.loads((Path(folder) / CALIBRATION).read_text()).get("k_fallen")
+    seeds = calibration(folder)["seeds"] if seeds is None else seeds
+    write_text(path, json.dumps({"level": LEVEL, "floor_share": FLOOR_SHARE, "k": k, "k_fallen": k_fallen,
+                                 "seeds": seeds, "calibrated_on": runs}, indent=2) + "\n")
 
 
 def load(folder: str | Path) -> tuple[list, float]:

@@ -169,8 +169,9 @@ def train_or_load(kind: str, base: TrainConfig, design: Design, data_dir: Path, 
             phis.update({run_name(c, p): phi for p in design.train_protocols})
     result = train(replace(base, kind=kind), train_runs, val_runs, phis=phis)
     store.save(result.model, folder, {**result.summary(), "design": design.__dict__}, result.history)
-    if len(result.members) >= 2:     # the restarts' ensemble; calibrate_band sets its k
-        ensemble.save(result, folder, ensemble.calibrate(result.members, result.val_sets, result.phis))
+    if len(result.members) >= 2:     # the restarts' ensemble and its band's scales
+        names, k, k_fallen = _band_scales(kind, result.members, design, data_dir, excitation_dir)
+        ensemble.save(result, folder, k, k_fallen, names)
     return result.model, result.summary()
 
 
@@ -183,30 +184,36 @@ def calibration_runs(design: Design, data_dir: Path, excitation_dir: Path) -> li
             if run_path(data_dir, excitation_dir, c, p).is_file()]
 
 
+def _band_scales(kind: str, members, design: Design, data_dir: Path, excitation_dir: Path):
+    """(names of :func:`calibration_runs`, k, k_fallen) of the ensemble ``members``: k on the runs'
+    points before the voltage first falls, k_fallen on those after (None when no run's voltage falls)."""
+    data, phis = [], {}
+    for c, p in calibration_runs(design, data_dir, excitation_dir):
+        data.append(_load(data_dir, excitation_dir, c, p))
+        phi = coin_phi(kind, _load(data_dir, excitation_dir, c, "ramp"))
+        phis[data[-1].name] = phi if phi is not None else members[0].phi_of(data[-1])
+    k = ensemble.calibrate(members, data, phis, where=lambda d: ~ensemble.fallen(d))
+    k_fallen = ensemble.calibrate(members, data, phis, where=ensemble.fallen)
+    k_fallen = None if math.isnan(k_fallen) else k_fallen
+    log.info("%s: band calibrated on %s (k = %.3g, where the voltage has fallen %s)", kind,
+             ", ".join(d.name for d in data), k, "k" if k_fallen is None else f"{k_fallen:.3g}")
+    return [d.name for d in data], k, k_fallen
+
+
 def calibrate_band(kind: str, design: Design, data_dir: Path, excitation_dir: Path, out: Path):
-    """The ensemble (members, k, k_fallen) of ``out/<kind>``, calibrated on
-    :func:`calibration_runs` (again only when those runs changed): k on their points before the
-    voltage first falls, k_fallen on those after (None when no run's voltage falls); None
-    without an ensemble."""
+    """The ensemble (members, k, k_fallen) of ``out/<kind>``, its scales (:func:`_band_scales`)
+    calibrated again only when :func:`calibration_runs` changed since; None without an ensemble."""
     folder = out / kind
     if not (folder / ensemble.CALIBRATION).is_file():
         return None
     members, k = ensemble.load(folder)
-    runs = calibration_runs(design, data_dir, excitation_dir)
-    names = [run_name(c, p) for c, p in runs]
-    if ensemble.calibrated_on(folder) != names or "k_fallen" not in json.loads((folder / ensemble.CALIBRATION).read_text()):
-        data, phis = [], {}
-        for c, p in runs:
-            data.append(_load(data_dir, excitation_dir, c, p))
-            phi = coin_phi(kind, _load(data_dir, excitation_dir, c, "ramp"))
-            phis[data[-1].name] = phi if phi is not None else members[0].phi_of(data[-1])
-        k = ensemble.calibrate(members, data, phis, where=lambda d: ~ensemble.fallen(d))
-        k_fallen = ensemble.calibrate(members, data, phis, where=ensemble.fallen)
-        k_fallen = None if math.isnan(k_fallen) else k_fallen
+    meta = ensemble.calibration(folder)
+    names = [run_name(c, p) for c, p in calibration_runs(design, data_dir, excitation_dir)]
+    if meta["calibrated_on"] != names or "k_fallen" not in meta:
+        names, k, k_fallen = _band_scales(kind, members, design, data_dir, excitation_dir)
         ensemble.write_calibration(folder, k, names, k_fallen)
-        log.info("%s: band calibrated on %s (k = %.3g, where the voltage has fallen %s)", kind, ", ".join(names), k,
-                 "k" if k_fallen is None else f"{k_fallen:.3g}")
-    return members, k, ensemble.k_fallen(folder)
+        return members, k, k_fallen
+    return members, k, meta["k_fallen"]
 
 
 def evaluate_case(model, kind: str, coin: str, protocol: str, role: str, data_dir: Path, excitation_dir: Path,
