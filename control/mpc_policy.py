@@ -94,6 +94,16 @@ criterion); where it stops past it is what the noise allows. f_a runs at the φ 
 from; with ``learn`` the hold after a sweep measures the plant's gain against f_a's open-loop end
 (:meth:`MPCPolicy._learn_sweep`), and the next sweep of the task starts its filter there.
 
+**Restroke** (``RESTROKE_V``). Where the push reaches the voltage limit with the coin standing short
+of the target (the mean of the observations there short by more than the tolerance plus ``HOLD_STDS`` of
+its std; in a sweep, while
+the gain band's least-travelling plant is not yet past the window) no voltage is left to push on. The
+policy then backs off ``RESTROKE_V`` and creeps back up at ``creep_V``: the coin's landing at the limit
+depends on how fast the tip arrived, and a quasi-static push carries it further than the rate that left it
+short (surrogate:C2 standing 10.1 µm short at 400 V: back 5 V, up at 0.5 V/step, and it passes the window
+to 1,039 µm; up at 5 V/step it stops where it stood). The hold ends the creep once the estimate is inside
+the hold band; in a sweep the creep goes on to the limit, through the window.
+
 **Setpoints.** The target is read from ``info["target_m"]`` at every step, so a task that
 moves the setpoint (push, push, pull back) re-plans at once.
 
@@ -204,6 +214,12 @@ UNSTALL = True
 #: shorter than the window cannot jump it; tests/control/test_mpc.py::
 #: test_where_the_noise_cannot_be_averaged_down_the_push_sweeps_through_the_window)
 SWEEP, SWEEP_STEP = True, 1.5
+#: a restroke where the coin stands short of the target at the voltage limit (module docstring,
+#: "Restroke"): RESTROKE_V back, then creep_V per step up again, at most RESTROKE_MAX per setpoint, once the
+#: coin has stood RESTROKE_WAIT steps at the limit (tests/control/test_mpc.py::
+#: test_a_coin_standing_short_of_the_target_at_the_voltage_limit_is_restroked_at_the_creep_rate)
+RESTROKE_V, RESTROKE_WAIT, RESTROKE_MAX = 5.0, 5, 3
+SWEEP_RESTROKE_V = 2.0
 
 
 #: the MPC's inference when none is given: Levenberg–Marquardt on the one-step loss
@@ -403,6 +419,9 @@ class MPCPolicy(Policy):
         entry, landing = self.learned.get(key), self.landing
         if entry is BEYOND_REACH:
             return
+        if self.restrokes and not self._unresolvable():
+            self.learned[key] = BEYOND_REACH     # the push reached the voltage limit short of the target
+            return
         if entry is not None and landing is not None and landing["n"] > 0:
             if V >= self.v_max_V and (x - self.target_m) * math.copysign(1.0, entry["slope"]) < -self.tolerance_m:
                 self.learned[key] = BEYOND_REACH     # the hold went to the voltage limit short of the target
@@ -558,6 +577,8 @@ class MPCPolicy(Policy):
         self.reach_end = None         # this step's full-rate rollout to the voltage limit (_at_reach)
         self.started = not self.dv_max_V < self.plant_dv_max_V   # the rate schedule's fast start is over
         self.solve_ms, self.inference_ms = [], []
+        self.restroke, self.restrokes, self.at_limit = False, 0, [0, 0, 0.0]
+        self.sweep_crossed = False    # the sweep's gain band has its least-travelling plant past the window
 
     def inferred(self) -> dict:
         """The current φ and each inferred field's Cramér–Rao bound on its relative error
@@ -617,6 +638,41 @@ class MPCPolicy(Policy):
         if self._at_reach(xi0, x, V, within=self.standoff_stds * self.estimate_std_m + self.approach_m):
             return self.target_m
         return self.target_m + self.side * margin
+
+    def _restroke(self, x: float, V: float, observed: float) -> float | None:
+        """ΔV of a restroke (module docstring, "Restroke"), None outside one: back off ``RESTROKE_V``
+        once the coin stands at the voltage limit short of the target, then ``creep_V`` per step up to
+        the limit (in a planned push only until the estimate ``x`` is inside the hold band, where the
+        hold takes over). Short: after ``RESTROKE_WAIT`` steps at the limit (the coin's coast), the mean
+        of the ``observed`` positions since then is short by more than the tolerance plus ``HOLD_STDS``
+        of its std (σ/√n: tested at every step, so as wide as the hold's own test); in a sweep, where that mean cannot tell, the gain band's
+        least-travelling plant is not past the window."""
+        if not self.config.terminal or RESTROKE_MAX <= 0 or self.side < 0:
+            return None
+        blind = self._blind()
+        if self.restroke:
+            if V < self.v_max_V and (blind or self.side * (x - self.target_m) > self.hold_band * self.tolerance_m):
+                return min(self.config.creep_V, self.dv_max_V, self.v_max_V - V)
+            self.restroke = False
+            self.at_limit = [0, 0, 0.0]
+            return None
+        if V < self.v_max_V or self.restrokes >= (1 if blind else RESTROKE_MAX):
+            self.at_limit = [0, 0, 0.0]
+            return None
+        steps, n, total = self.at_limit
+        steps += 1
+        if steps > RESTROKE_WAIT:
+            n, total = n + 1, total + observed
+        self.at_limit = [steps, n, total]
+        if blind:
+            short = steps > RESTROKE_WAIT and not self.sweep_crossed
+        else:
+            mean_std = self.spec.noise_std_m / math.sqrt(max(n, 1))
+            short = n > 0 and self.side * (total / n - self.target_m) > self.tolerance_m + HOLD_STDS * mean_std
+        if not short:
+            return None
+        self.restroke, self.restrokes, self.holding = True, self.restrokes + 1, False
+        return -min(SWEEP_RESTROKE_V if blind else RESTROKE_V, V)
 
     def _unresolvable(self) -> bool:
         """Whether held observations cannot average the estimate down to tolerance /
@@ -681,7 +737,8 @@ class MPCPolicy(Policy):
         spread = self.standoff_stds * math.sqrt(max(float(self.bias.P[1, 1]), 0.0))
         g = self.gain_error
         low, high = max(1.0 + g - spread, 0.0), 1.0 + g + spread
-        if full <= 0 or low * x <= self.target_m - self.tolerance_m:
+        self.sweep_crossed = low * x <= self.target_m - self.tolerance_m
+        if full <= 0 or self.sweep_crossed:
             # held: where f_a's coin stands, the observations measure the plant's travel against it
             if before == x and x != 0.0:
                 hold = self.sweep_hold
@@ -813,6 +870,7 @@ class MPCPolicy(Policy):
             self.moved_target, self.schedule = True, None
             self.side = math.copysign(1.0, (self.previous[0] if self.previous else x) - target)
             self.waited = 0
+            self.restroke, self.restrokes, self.at_limit = False, 0, [0, 0, 0.0]
         if cfg.inference is not None:
             start = time.perf_counter()
             self.inference.observe(x, V)
@@ -829,6 +887,10 @@ class MPCPolicy(Policy):
             self.turned = (self.V_peak, x)      # turned back past the target
         xi0 = self.dynamics.state(x, u, V, self.memory)
         self.reach_end = None
+        dV = self._restroke(x, V, observed)
+        if dV is not None:
+            self.solve_ms.append(1e3 * (time.perf_counter() - start))
+            return dV
         if self._blind():
             self.solve_ms.append(1e3 * (time.perf_counter() - start))
             return self._sweep(V, observed)

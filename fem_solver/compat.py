@@ -237,11 +237,15 @@ def dirichlet_value(space, mesh, facets, value: dolfinx.fem.Function, subspace):
 #: ways). Fast math without ``-ffinite-math-only``: a NaN or an Inf still reaches the solver's checks.
 FORM_CFLAGS = "-O3 -march=native -ffast-math -fno-finite-math-only -g0"
 FORM_CFLAGS_ENV = "DEAPULL_FORM_CFLAGS"
+#: seconds a process waits for a form that another process is compiling into the shared cache (dolfinx's
+#: default of 10 s is shorter than one -O3 compile of the Jacobian beside another: on a fresh cache the
+#: sweep's second rank, solving its own setup on COMM_SELF, then fails with a TimeoutError)
+JIT_TIMEOUT_S = 900
 
 
 def form(expr):
     flags = os.environ.get(FORM_CFLAGS_ENV, FORM_CFLAGS).split()
-    return dolfinx.fem.form(expr, jit_params={"cffi_extra_compile_args": flags})
+    return dolfinx.fem.form(expr, jit_params={"cffi_extra_compile_args": flags, "timeout": JIT_TIMEOUT_S})
 
 
 def create_vector(compiled):

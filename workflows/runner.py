@@ -366,10 +366,15 @@ def run_cases(cases, out_dir, comm, ranks_per_case: int = 1, desc: str = "cases"
     if comm.rank == 0:
         log.info("%s: %d cases, %d already done, %d to run on %d group(s) of %d rank(s) -> %s", desc, len(cases),
                  len(cases) - len(todo), len(todo), n_groups, ranks_per_case, out_dir)
-        stale = [c.name for c in todo if result_path(out_dir, c.name).is_file()]
+        stored = {c.name: load_result(out_dir, c, resolved[c.name]) for c in todo}
+        stale = [c.name for c in todo if result_path(out_dir, c.name).is_file() and stored[c.name] is None]
+        crashed = [name for name, result in stored.items() if result is not None and result.get("status") == "error"]
         if stale:
             log.info("%s: solving again %s: stored for another resolved scene (a changed scene file or default)",
                      desc, ", ".join(stale))
+        if crashed:
+            log.info("%s: solving again %s: its stored run crashed (%s)", desc, ", ".join(crashed),
+                     "; ".join((stored[name].get("reason") or "?").splitlines()[0] for name in crashed))
     claims = Claims(out_dir, comm)
     bar = tqdm(total=len(cases), initial=len(cases) - len(todo), desc=desc, unit="case", disable=comm.rank != 0)
     for case in claims.cases(todo, group):

@@ -752,6 +752,47 @@ def test_a_target_the_landing_line_meets_beyond_the_voltage_limit_is_planned_not
     assert mpc_policy.BEYOND_REACH is BEYOND_REACH
 
 
+@pytest.mark.parametrize("noise_m, target_m, restrokes", [(0.0, -0.2e-3, 2), (1e-3, -0.182e-3, 1)])
+def test_a_coin_standing_short_of_the_target_at_the_voltage_limit_is_restroked_at_the_creep_rate(
+        coulomb, sweep, monkeypatch, noise_m, target_m, restrokes):
+    """With the voltage limit at 250 V the fixture's plant (f-coulomb on C1) stands at 170.4 µm, short of
+    a 200 µm target: no voltage is left to push on. Backing off 5 V and creeping up at 0.5 V per step
+    carries it further each time (a quasi-static push slides it on where the planned rate left it):
+    two restrokes reach the window. In a sweep (σ = 1 mm), which cannot tell where the coin stands,
+    one restroke of 2 V takes it from 1.6 µm short of a 182 µm target's window into it, and there is
+    no second. A coin standing inside the window (170 µm target) is not restroked. A restroked task is
+    planned without the approach taper in later episodes (the plant showed the target at the edge of its
+    reach). Broken once each: without the restroke (RESTROKE_MAX = 0) neither reaches; with the sweep's cap
+    lifted it restroked 3 times; restroking whatever the coin's mean at the limit, 3 times; without the
+    mark, the next episode learnt a schedule."""
+    from deapull.control import mpc_policy
+    from deapull.control.env import CoinPushEnv
+    from deapull.control.mpc_policy import MPCConfig, MPCPolicy
+    from deapull.control.plants import SurrogatePlant
+    from deapull.workflows.control import run_episode
+    plant = SurrogatePlant(coulomb, coulomb.phi_of(sweep["C1"]), name="surrogate:C1")
+
+    def episode(target, noise=noise_m):
+        env = CoinPushEnv(plant, target_m=target, v_max_V=250.0, noise_std_m=noise, terminate_on_success=False,
+                          max_steps=400)
+        policy = MPCPolicy(coulomb, MPCConfig(horizon=10, iterations=4, inference=None, approach_m=1e-4),
+                           phi=plant.truth)
+        return run_episode(env, policy, seed=0, step_limit=400, hold_steps=20), policy, env
+
+    ep, policy, env = episode(target_m)
+    assert ep.row["reached"] and policy.restrokes == restrokes
+    assert float(ep.V_V.max()) == 250.0
+    if noise_m == 0:
+        # the target lies at the edge of the reach: the next episodes plan without the approach taper
+        policy.reset(env.task_spec())
+        assert list(policy.learned.values()) == [mpc_policy.BEYOND_REACH] and policy.approach_m == 0.0
+        ep, policy, _ = episode(-0.17e-3)
+        assert ep.row["reached"] and policy.restrokes == 0
+    monkeypatch.setattr(mpc_policy, "RESTROKE_MAX", 0)
+    ep, policy, _ = episode(target_m)
+    assert not ep.row["reached"] and policy.restrokes == 0
+
+
 def test_the_stand_off_does_not_wait_where_the_noise_cannot_be_averaged_down_in_time(coulomb, sweep):
     """At σ = 1 mm the held observations average the estimate to σ/√max_wait = 26 µm at best, far
     above the stand-off's 0.3 × 10 µm: waiting cannot help, so the MPC does not stand off (at
