@@ -116,8 +116,9 @@ else
 	@echo "BENCH=$(BENCH): expected fem, surrogate, control, control-fem, inference or blas"; exit 2
 endif
 
-experiments: setup ## the paper's six sets (f-coulomb, NN, LSTM; 3 repeats of seeds) and the held-out friction pairs (needs $(DATA)); writes bench/reference/surrogate_*.json
-	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments --models f-coulomb,nn,lstm --publish bench/reference
+experiments: setup ## the paper's six sets (f-patch, NN, LSTM; 3 repeats of seeds) and the held-out friction pairs (needs $(DATA)); writes bench/reference/surrogate_*.json
+	$(DEAPULL) experiments --data $(DATA) --out $(OUT)/experiments --models f-patch,nn,lstm --restarts f-patch=3 \
+		--publish bench/reference
 	$(DEAPULL) experiments-protocols --held-out-pairs --data $(DATA) --out $(OUT)/pairs --models f-patch-lag,f-coulomb,nn \
 		--restarts f-patch-lag=5,f-coulomb=5 \
 		--publish bench/reference

@@ -352,8 +352,9 @@ class TipPatchModel(TipContactModel):
     moving at u is μ_t Fy s/√(s² + ε²), s = w − u, so a coin dragged at a steady margin r lags
     the tip by ε r/√(1 − r²) ≈ β w r/√(1 − r²), a share that grows with r as the FEM's does.
     β = 0 is f-coulomb. The spread is a property of the DEA (of V alone); only runs with
-    different margins at the same V identify it, so train on several coins (f_a: C3..C7). On a
-    single training coin β and the stroke X trade off, and the model is f-coulomb's.
+    different margins at the same V identify it apart from the stroke X. Trained on one coin it
+    still carries a share that falls with the coin's speed to a coin of another margin: it is
+    the f of the paper's one-coin sets (docs/surrogate.md, Table II).
 
     m: MLP 1 → ``layers``×``hidden`` ReLU → 3 (X, Fy, β = softplus(o₂ − ``spread_shift``)). No C
     rollout kernel: rollouts take the torch path; the MPC's compiled step
@@ -365,17 +366,7 @@ class TipPatchModel(TipContactModel):
     material_outputs = 3
     #: β = softplus(o₂ − spread_shift): β ≈ 0.13 for a fresh network's o₂ ≈ 0
     spread_shift = 2.0
-    training_coins = 2
     native_kernel = None
-
-    @classmethod
-    def training_hparams(cls, config, train_sets: list) -> dict:
-        margins = {(d.mu_t, d.mu_b) for d in train_sets}
-        if len(margins) < cls.training_coins:
-            log.warning("f-patch trained on coins of %d friction pair(s) %s: the patch's spread is not identified "
-                        "(it trades off with the stroke); train on coins of different μ_t/μ_b (f_a: C3..C7)",
-                        len(margins), sorted(margins))
-        return super().training_hparams(config, train_sets)
 
     def spread_of(self, raw):
         return torch.nn.functional.softplus(raw[..., 2] - self.spread_shift)
@@ -399,6 +390,16 @@ class TipPatchLagModel(TipPatchModel):
 
     kind = "f-patch-lag"
     label = "f (tip patch, lag)"
+    training_coins = 2
+
+    @classmethod
+    def training_hparams(cls, config, train_sets: list) -> dict:
+        margins = {(d.mu_t, d.mu_b) for d in train_sets}
+        if len(margins) < cls.training_coins:
+            log.warning("f-patch-lag trained on coins of %d friction pair(s) %s: the lag terms are not identified "
+                        "(on one coin's ramp the lag follows V); train on coins of different μ_t/μ_b",
+                        len(margins), sorted(margins))
+        return super().training_hparams(config, train_sets)
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         # in m's dtype: rollouts take theirs from the first parameter

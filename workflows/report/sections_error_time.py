@@ -37,13 +37,13 @@ from deapull.paper import ABAQUS_S
 from deapull.workflows.report.document import Report, Section, Table
 from deapull.workflows.fidelity import ranks_suffix
 from deapull.workflows.report.plots import BOUND, TRAVEL, X_MAE, plot_error_time
+from deapull.workflows.report.sections_surrogates import MODEL_LABELS
 from deapull.workflows.report.tabular import csv_text, fmt, num, read_csv, run_config
 
 POINT_COLUMNS = ("group", "label", "metric", "wall_s", "error_pct", "status", "make", "source")
 CONTROL_COLUMNS = ("policy", "plant", "noise_std_m", "episodes", "reached", "episode_wall_s_median",
                    "ms_per_iteration_median", "plan_ms_per_iteration_median", "final_error_pct_median",
                    "move_mm", "status", "make", "source")
-MODEL_LABELS = {"f": "f (paper's law)", "f-coulomb": "f (tip contact)", "nn": "NN", "lstm": "LSTM"}
 
 
 def _true(value) -> bool:

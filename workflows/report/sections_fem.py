@@ -386,7 +386,7 @@ def section_fidelity(rep: Report) -> Section:
                     caption="The ladder (reference: the finest affordable rung)"))
     if not any(r.get("kind", "") not in ("", "fem") for r in rows):
         sec.p(f"No surrogate on this ladder yet: `mpirun -n 2 deapull fidelity --scene coin_pull --setup C3{fidelity_arg} "
-              f"--out {inputs.fidelity} --surrogate {inputs.experiments}/set1/f-coulomb` adds one (the FEM rungs are "
+              f"--out {inputs.fidelity} --surrogate {inputs.experiments}/set1/f-patch` adds one (the FEM rungs are "
               "reused).")
     default = next((r for r in rows if r.get("is_default") in ("True", "true", "1")), None)
     if default is not None:

@@ -11,7 +11,8 @@ from deapull.workflows.report.document import Claim, Report, Section, Table
 from deapull.workflows.report.inputs import step_done
 from deapull.workflows.report.tabular import fmt, num, read_csv
 
-MODEL_LABELS = {"f": "f (paper's law)", "f-coulomb": "f (tip contact)", "nn": "NN", "lstm": "LSTM"}
+MODEL_LABELS = {"f": "f (paper's law)", "f-coulomb": "f (tip contact)", "f-patch": "f (tip patch)", "nn": "NN",
+                "lstm": "LSTM"}
 
 
 def section_surrogates(rep: Report) -> Section:
