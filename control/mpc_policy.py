@@ -95,9 +95,9 @@ from; with ``learn`` the hold after a sweep measures the plant's gain against f_
 (:meth:`MPCPolicy._learn_sweep`), and the next sweep of the task starts its filter there.
 
 **Restroke** (``RESTROKE_V``). Where the push reaches the voltage limit with the coin standing short
-of the target (the mean of the observations there short by more than the tolerance plus ``HOLD_STDS`` of
-its std; in a sweep, while
-the gain band's least-travelling plant is not yet past the window) no voltage is left to push on. The
+of the target (the mean of the observations there short by more than the tolerance plus ``HOLD_STDS``
+of its std; in a sweep, while the gain band's least-travelling plant is not yet past the window) no
+voltage is left to push on. The
 policy then backs off ``RESTROKE_V`` and creeps back up at ``creep_V``: the coin's landing at the limit
 depends on how fast the tip arrived, and a quasi-static push carries it further than the rate that left it
 short (surrogate:C2 standing 10.1 µm short at 400 V: back 5 V, up at 0.5 V/step, and it passes the window
@@ -216,10 +216,10 @@ UNSTALL = True
 SWEEP, SWEEP_STEP = True, 1.5
 #: a restroke where the coin stands short of the target at the voltage limit (module docstring,
 #: "Restroke"): RESTROKE_V back, then creep_V per step up again, at most RESTROKE_MAX per setpoint, once the
-#: coin has stood RESTROKE_WAIT steps at the limit (tests/control/test_mpc.py::
+#: coin has stood RESTROKE_WAIT steps at the limit; in a sweep once, SWEEP_RESTROKE_V back
+#: (tests/control/test_mpc.py::
 #: test_a_coin_standing_short_of_the_target_at_the_voltage_limit_is_restroked_at_the_creep_rate)
-RESTROKE_V, RESTROKE_WAIT, RESTROKE_MAX = 5.0, 5, 3
-SWEEP_RESTROKE_V = 2.0
+RESTROKE_V, RESTROKE_WAIT, RESTROKE_MAX, SWEEP_RESTROKE_V = 5.0, 5, 3, 2.0
 
 
 #: the MPC's inference when none is given: Levenberg–Marquardt on the one-step loss
@@ -577,7 +577,7 @@ class MPCPolicy(Policy):
         self.reach_end = None         # this step's full-rate rollout to the voltage limit (_at_reach)
         self.started = not self.dv_max_V < self.plant_dv_max_V   # the rate schedule's fast start is over
         self.solve_ms, self.inference_ms = [], []
-        self.restroke, self.restrokes, self.at_limit = False, 0, [0, 0, 0.0]
+        self._clear_restroke()
         self.sweep_crossed = False    # the sweep's gain band has its least-travelling plant past the window
 
     def inferred(self) -> dict:
@@ -639,36 +639,45 @@ class MPCPolicy(Policy):
             return self.target_m
         return self.target_m + self.side * margin
 
+    def _clear_restroke(self) -> None:
+        """No restroke yet for this setpoint: none running, none made, nothing observed at the limit."""
+        self.restroke, self.restrokes = False, 0
+        self._leave_limit()
+
+    def _leave_limit(self) -> None:
+        """Start counting afresh at the voltage limit: its steps, and the observations after the wait."""
+        self.at_limit = {"steps": 0, "n": 0, "sum": 0.0}
+
     def _restroke(self, x: float, V: float, observed: float) -> float | None:
         """ΔV of a restroke (module docstring, "Restroke"), None outside one: back off ``RESTROKE_V``
         once the coin stands at the voltage limit short of the target, then ``creep_V`` per step up to
         the limit (in a planned push only until the estimate ``x`` is inside the hold band, where the
-        hold takes over). Short: after ``RESTROKE_WAIT`` steps at the limit (the coin's coast), the mean
-        of the ``observed`` positions since then is short by more than the tolerance plus ``HOLD_STDS``
-        of its std (σ/√n: tested at every step, so as wide as the hold's own test); in a sweep, where that mean cannot tell, the gain band's
-        least-travelling plant is not past the window."""
+        hold takes over). Short: after ``RESTROKE_WAIT`` steps at the limit (the coin's coast), the
+        mean of the ``observed`` positions since then is short by more than the tolerance plus
+        ``HOLD_STDS`` of its std σ/√n (tested at every step, so as wide as the hold's own test); in a
+        sweep, where that mean cannot tell, the gain band's least-travelling plant is not past the
+        window."""
         if not self.config.terminal or RESTROKE_MAX <= 0 or self.side < 0:
             return None
-        blind = self._blind()
+        blind, seen = self._blind(), self.at_limit
         if self.restroke:
             if V < self.v_max_V and (blind or self.side * (x - self.target_m) > self.hold_band * self.tolerance_m):
                 return min(self.config.creep_V, self.dv_max_V, self.v_max_V - V)
             self.restroke = False
-            self.at_limit = [0, 0, 0.0]
+            self._leave_limit()
             return None
         if V < self.v_max_V or self.restrokes >= (1 if blind else RESTROKE_MAX):
-            self.at_limit = [0, 0, 0.0]
+            self._leave_limit()
             return None
-        steps, n, total = self.at_limit
-        steps += 1
-        if steps > RESTROKE_WAIT:
-            n, total = n + 1, total + observed
-        self.at_limit = [steps, n, total]
+        seen["steps"] += 1
+        if seen["steps"] > RESTROKE_WAIT:
+            seen["n"], seen["sum"] = seen["n"] + 1, seen["sum"] + observed
         if blind:
-            short = steps > RESTROKE_WAIT and not self.sweep_crossed
+            short = seen["steps"] > RESTROKE_WAIT and not self.sweep_crossed
         else:
-            mean_std = self.spec.noise_std_m / math.sqrt(max(n, 1))
-            short = n > 0 and self.side * (total / n - self.target_m) > self.tolerance_m + HOLD_STDS * mean_std
+            n = seen["n"]
+            short = n > 0 and (self.side * (seen["sum"] / n - self.target_m)
+                               > self.tolerance_m + HOLD_STDS * self.spec.noise_std_m / math.sqrt(n))
         if not short:
             return None
         self.restroke, self.restrokes, self.holding = True, self.restrokes + 1, False
@@ -870,7 +879,7 @@ class MPCPolicy(Policy):
             self.moved_target, self.schedule = True, None
             self.side = math.copysign(1.0, (self.previous[0] if self.previous else x) - target)
             self.waited = 0
-            self.restroke, self.restrokes, self.at_limit = False, 0, [0, 0, 0.0]
+            self._clear_restroke()
         if cfg.inference is not None:
             start = time.perf_counter()
             self.inference.observe(x, V)

@@ -400,6 +400,7 @@ class TipPatchLagModel(TipPatchModel):
                         "(on one coin's ramp the lag follows V); train on coins of different μ_t/μ_b",
                         len(margins), sorted(margins))
         return super().training_hparams(config, train_sets)
+
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         # in m's dtype: rollouts take theirs from the first parameter
