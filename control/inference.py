@@ -117,8 +117,12 @@ class InferenceConfig:
     fields : tuple of str or None
         The fields of φ to infer (None: every field the model uses). The others stay at their
         ``initial`` value, or at the prior's median where ``prior`` has one.
-    initial : dict
-        Starting value per field (SI units); defaults to :data:`INITIAL`.
+    initial : dict or None
+        Starting value per field (SI units). None (the default): :data:`INITIAL`, except that a
+        field of ``prior`` starts at the prior's median, the estimate before any data (from
+        INITIAL's 0.001 g coin the rollout loss, at most ``max_log_step`` per update, needs ~15
+        updates to reach a 1.4 g coin, and the MPC plans on the wrong coin meanwhile). The values
+        used are :attr:`start`.
     lr : float
         Adam's learning rate on log φ.
     batch_size : int
@@ -177,7 +181,7 @@ class InferenceConfig:
     """
 
     fields: tuple | None = None
-    initial: dict = field(default_factory=lambda: dict(INITIAL))
+    initial: dict | None = None
     lr: float = 0.05
     batch_size: int = 256
     updates_per_step: int = 1
@@ -198,11 +202,16 @@ class InferenceConfig:
     every: int = 10
     crlb_every: int = 100
 
+    @property
+    def start(self) -> dict:
+        """The starting value of every field (SI units): ``initial``, or its default; a field left out of
+        ``fields`` is held at the prior's median (what a plan uses for it)."""
+        prior = self.prior or {}
+        held = {f: m for f, (m, _) in prior.items() if self.initial is None or (self.fields is not None
+                                                                               and f not in self.fields)}
+        return {**(INITIAL if self.initial is None else self.initial), **held}
+
     def __post_init__(self):
-        if self.fields is not None and self.prior:
-            # a field left out of ``fields`` is held at the prior's median (what a plan uses for it)
-            held = {f: median for f, (median, _) in self.prior.items() if f not in self.fields}
-            object.__setattr__(self, "initial", {**self.initial, **held})
         if not self.lr > 0 or self.batch_size < 1 or self.updates_per_step < 0 or not self.residual_scale_m > 0:
             raise InputError(f"inference settings out of range: lr {self.lr} > 0, batch_size {self.batch_size} >= 1, "
                              f"updates_per_step {self.updates_per_step} >= 0, residual_scale_m "
@@ -334,7 +343,7 @@ class OnlineInference:
         if unknown:
             raise InputError(f"cannot infer {', '.join(unknown)}: the {model.kind} model uses "
                              f"{', '.join(model.phi_fields)}")
-        missing = [f for f in model.phi_fields if f not in config.initial]
+        missing = [f for f in model.phi_fields if f not in config.start]
         if missing:
             raise InputError(f"no initial value for {', '.join(missing)} (InferenceConfig.initial)")
         self.predictor = Predictor(self.model)
@@ -347,7 +356,7 @@ class OnlineInference:
     def reset(self) -> None:
         """Back to the initial φ with an empty buffer (a new episode)."""
         cfg = self.config
-        self.log_phi = {f: torch.tensor(math.log(cfg.initial[f]), dtype=torch.float64, requires_grad=True)
+        self.log_phi = {f: torch.tensor(math.log(cfg.start[f]), dtype=torch.float64, requires_grad=True)
                         for f in self.fields}
         self.optimizer = torch.optim.Adam(list(self.log_phi.values()), lr=cfg.lr)
         self.damping = cfg.damping
@@ -366,7 +375,7 @@ class OnlineInference:
                 v = self.log_phi[f].exp()
                 values[f] = v.detach() if detach else v
             else:
-                values[f] = torch.tensor(float(self.config.initial[f]), dtype=torch.float64)
+                values[f] = torch.tensor(float(self.config.start[f]), dtype=torch.float64)
         return Phi(**values)
 
     @property
@@ -381,7 +390,7 @@ class OnlineInference:
 
     def estimate(self) -> dict:
         """The current estimate by field (floats, SI units)."""
-        return {f: float(self.log_phi[f].detach().exp()) if f in self.log_phi else float(self.config.initial[f])
+        return {f: float(self.log_phi[f].detach().exp()) if f in self.log_phi else float(self.config.start[f])
                 for f in self.model.phi_fields}
 
     def observe(self, x_m: float, V_V: float) -> None:
@@ -442,7 +451,7 @@ class OnlineInference:
 
     def _phi_rows(self, log_values: torch.Tensor) -> Phi:
         """φ with the inferred fields from per-row log values (n, p), the rest fixed."""
-        values = {f: torch.tensor(float(self.config.initial[f]), dtype=torch.float64) for f in self.model.phi_fields}
+        values = {f: torch.tensor(float(self.config.start[f]), dtype=torch.float64) for f in self.model.phi_fields}
         values.update({f: log_values[:, i].exp() for i, f in enumerate(self.fields)})
         return Phi(**values)
 
@@ -547,7 +556,7 @@ class OnlineInference:
         """:meth:`residuals` at one φ (inferred fields from ``log_values``) and their
         Jacobian with respect to those log values, evaluated in C."""
         cfg = self.config
-        values = {f: float(cfg.initial[f]) for f in self.model.phi_fields}
+        values = {f: float(cfg.start[f]) for f in self.model.phi_fields}
         values.update({f: math.exp(float(v)) for f, v in zip(self.fields, log_values)})
         pred, dpred, short, dshort = self.native(self.model, columns, values, jacobian)
         columns_of = [("mass_kg", "mu_b", "mu_t").index(f) for f in self.fields]

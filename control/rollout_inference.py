@@ -73,7 +73,7 @@ class RolloutInference:
         if unknown:
             raise InputError(f"cannot infer {', '.join(unknown)}: the {model.kind} model uses "
                              f"{', '.join(model.phi_fields)}")
-        phi = Phi(**{f: torch.tensor(float(config.initial[f]), dtype=torch.float64) for f in model.phi_fields})
+        phi = Phi(**{f: torch.tensor(float(config.start[f]), dtype=torch.float64) for f in model.phi_fields})
         if native.available(model):
             self.dynamics = native.native_dynamics(model, phi, dt, dv_max_V, v_max_V)
         else:
@@ -85,7 +85,7 @@ class RolloutInference:
         self.reset()
 
     def reset(self) -> None:
-        self.log_phi = np.log([float(self.config.initial[f]) for f in self.fields])
+        self.log_phi = np.log([float(self.config.start[f]) for f in self.fields])
         self.damping = self.config.damping
         self.x, self.V = [], []
         self.log, self.iteration, self.moved = [], 0, False
@@ -94,7 +94,7 @@ class RolloutInference:
     # --- the estimate -----------------------------------------------------------------------
 
     def _phi_of(self, log_values) -> Phi:
-        values = {f: torch.tensor(float(self.config.initial[f]), dtype=torch.float64) for f in self.model_fields}
+        values = {f: torch.tensor(float(self.config.start[f]), dtype=torch.float64) for f in self.model_fields}
         values.update({f: torch.tensor(math.exp(float(v)), dtype=torch.float64) for f, v in zip(self.fields, log_values)})
         return Phi(**values)
 
@@ -103,7 +103,7 @@ class RolloutInference:
         return self._phi_of(self.log_phi)
 
     def estimate(self) -> dict:
-        out = {f: float(self.config.initial[f]) for f in self.model_fields}
+        out = {f: float(self.config.start[f]) for f in self.model_fields}
         out.update({f: math.exp(float(v)) for f, v in zip(self.fields, self.log_phi)})
         return out
 

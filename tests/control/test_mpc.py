@@ -314,7 +314,7 @@ def test_mpc_drives_a_surrogate_plant_to_the_target(coulomb, infer, engine):
         log = policy.inference.log      # one update per step once the coin has moved
         assert 0 < len(log) < env.steps and [r["iteration"] for r in log] == list(range(1, len(log) + 1))
         est = policy.inferred()
-        assert all(est[f] != policy.config.inference.initial[f] for f in policy.inference.fields)
+        assert all(est[f] != policy.config.inference.start[f] for f in policy.inference.fields)
 
 
 def test_the_offset_free_mpc_settles_at_every_setpoint_of_push_push_pull_back(coulomb, sweep):

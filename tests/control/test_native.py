@@ -146,6 +146,6 @@ def test_native_inference_residuals_jacobian_and_steps_are_torchs(committed, swe
                                    rtol=1e-6, atol=1e-12)
         torch.testing.assert_close(runs["native"].tip, runs["torch"].tip, rtol=1e-6, atol=1e-12)
     a, b = runs["torch"].estimate(), runs["native"].estimate()
-    assert a != InferenceConfig().initial
+    assert a != InferenceConfig().start
     for f in a:
         assert b[f] == pytest.approx(a[f], rel=1e-6), f
