@@ -233,7 +233,7 @@ def test_no_start_value_equals_a_setups_truth():
 def test_with_a_prior_the_estimate_and_the_plan_start_at_its_median(coulomb, sweep, loss):
     """Before any data the MAP estimate is the prior's median, so with a prior the inference, and the
     MPC's first plan, start there, not at INITIAL (the paper's 0.001 g coin, which the rollout loss
-    needs ~15 updates to climb out of: surrogate:C1 at 0.1 mm of noise was planned on a 5 µg coin
+    needs ~15 updates to climb out of: surrogate:C1 at 0.1 mm of noise was planned on a 5 mg coin
     through its whole push and coasted 58 µm past the target). Broken once (the prior's fields
     started at INITIAL): the estimate was 1e-06 kg."""
     from deapull.control.mpc_policy import MPCConfig, MPCPolicy
