@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from deapull.workflows.cli import main
-from tests.conftest import TINY_MESH
+from tests.conftest import SHARP, TINY_MESH
 
 
 def _rows(path):
@@ -148,7 +148,7 @@ def test_an_interrupted_run_keeps_the_episodes_it_finished(base, tmp_path, monke
 def test_control_on_the_fem_plant_of_a_tiny_mesh(tmp_path):
     out = tmp_path / "out"
     argv = ["control", "--policy", "heur", "--plant", "fem:C1", "--episodes", "1", "--max-steps", "5", "--hold", "0",
-            "--out", str(out), "--no-progress", *[a for s in TINY_MESH for a in ("--set", s)]]
+            "--out", str(out), "--no-progress", *[a for s in (*SHARP, *TINY_MESH) for a in ("--set", s)]]
     assert main(argv) == 0
     (row,) = _rows(out / "control.csv")
     assert row["plant"] == "fem:C1" and row["status"] == "ok" and row["steps_run"] == "5"
