@@ -153,16 +153,16 @@ def test_fidelity_ladder_writes_csv_markdown_and_pareto_plot(tmp_path):
 
 def test_resume_skips_completed_case(tmp_path):
     """A case whose result exists is not solved again; a missing one (an interrupted run) is."""
-    cmd = _cli("stability", "--out", str(tmp_path), "--protocol", "full", "--cases", "baseline,mu_b-1", *_sets(TINY))
+    cmd = _cli("stability", "--out", str(tmp_path), "--protocol", "full", "--cases", "mu_t-0,mu_b-1", *_sets(TINY))
     first = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
     assert first.returncode == 0, first.stderr[-2000:]
-    done = tmp_path / "cases" / "baseline.json"
-    stamp = done.stat().st_mtime_ns, (tmp_path / "cases" / "baseline" / "C3.nc").stat().st_mtime_ns
+    done = tmp_path / "cases" / "mu_t-0.json"
+    stamp = done.stat().st_mtime_ns, (tmp_path / "cases" / "mu_t-0" / "C3.nc").stat().st_mtime_ns
     (tmp_path / "cases" / "mu_b-1.json").unlink()          # as if interrupted during mu_b-1
     second = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO)
     assert second.returncode == 0, second.stderr[-2000:]
     assert "1 already done, 1 to run" in second.stderr
-    assert (done.stat().st_mtime_ns, (tmp_path / "cases" / "baseline" / "C3.nc").stat().st_mtime_ns) == stamp
+    assert (done.stat().st_mtime_ns, (tmp_path / "cases" / "mu_t-0" / "C3.nc").stat().st_mtime_ns) == stamp
     assert json.loads((tmp_path / "cases" / "mu_b-1.json").read_text())["status"] == "ok"
     assert "mu_b-1" in second.stdout and "Traceback" not in second.stderr
 
